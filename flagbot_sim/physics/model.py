@@ -30,9 +30,11 @@ class State:
     v: np.ndarray
     frames: EdgeFrames
     extras: dict = field(default_factory=dict)
+    a: np.ndarray | None = None      # last step's velocity change / dt, for the Newton predictor only
 
     def copy(self) -> "State":
-        return State(self.t, self.q.copy(), self.v.copy(), self.frames.copy(), copy.deepcopy(self.extras))
+        return State(self.t, self.q.copy(), self.v.copy(), self.frames.copy(), copy.deepcopy(self.extras),
+                     None if self.a is None else self.a.copy())
 
 
 def build_effects(scene: Scene, net: RodNetwork, elastic: ElasticModel) -> list[Effect]:

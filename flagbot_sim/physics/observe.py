@@ -57,6 +57,7 @@ class Observer:
         self.hist_phi_h = [0.0]
         self.hist_phi_t = [0.0]
         self.hist_pos = [self.position(state).copy()]
+        self.hist_tip = [self.corotating_tip(state)] if self.clamped else []
         self.rate_h = 0.0      # instantaneous (last step) rates, rad/s
         self.rate_t = 0.0
         self.speed = 0.0
@@ -84,6 +85,13 @@ class Observer:
         dtheta = new.q[k] - old.q[k]
         dref = signed_angle(old.frames.d1[edge][None], new.frames.d1[edge][None], axis[None])[0]
         return float(dtheta + dref)
+
+    def corotating_tip(self, state: State) -> np.ndarray:
+        """Tip of the (first) flagellum in the frame turning with the clamp: clamp at (0, R_d, 0)."""
+        phi = state.extras.get("clamp_angle", 0.0)
+        c, s = math.cos(phi), math.sin(phi)
+        R_inv = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+        return R_inv @ self.x(state)[self.net.flagella_nodes[0][-1]]
 
     def head_orientation(self, state: State) -> np.ndarray:
         """Rotation matrix of the head body: columns (tangent, m1, m2) of the head edge's material frame."""
@@ -118,6 +126,8 @@ class Observer:
         self.hist_phi_h.append(self.phi_h)
         self.hist_phi_t.append(self.phi_t)
         self.hist_pos.append(pos)
+        if self.clamped:
+            self.hist_tip.append(self.corotating_tip(new))
 
     # ---------------------------------------------------------------- windows
     def window_rates(self, window: float, end_time: float | None = None) -> dict | None:
@@ -150,7 +160,13 @@ class Observer:
             return last
         prev = self.window_rates(window, end_time=self.t[-1] - window)
         steady = False
-        if prev is not None:
+        if self.clamped:
+            # the rates are imposed by the clamp: steadiness is the shape in the co-rotating frame
+            i0 = int(np.searchsorted(self.t, self.t[-1] - window * (1 - 1e-9), side="right") - 1)
+            if i0 >= 0 and self.t[-1] - self.t[i0] >= 0.999 * window:
+                drift = np.linalg.norm(self.hist_tip[-1] - self.hist_tip[i0])
+                steady = bool(drift < rtol * self.model.scene.flagellum.length)
+        elif prev is not None:
             scale = max(abs(last["omega_h"]) + abs(last["omega_t"]), 1e-12)
             dv = abs(last["v"] - prev["v"]) / max(abs(last["v"]), 1e-12)
             dw = (abs(last["omega_h"] - prev["omega_h"]) + abs(last["omega_t"] - prev["omega_t"])) / scale

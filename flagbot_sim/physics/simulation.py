@@ -123,10 +123,7 @@ class Simulation:
 
     def clamp_frame_tip(self) -> np.ndarray:
         """Flagellum tip in the frame co-rotating with the clamp (clamp at (0, R_d, 0))."""
-        phi = self.state.extras.get("clamp_angle", 0.0)
-        c, s = math.cos(phi), math.sin(phi)
-        R_inv = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
-        return R_inv @ self.flagella_centrelines()[0][-1]
+        return self.observer.corotating_tip(self.state)
 
     def steady_state(self) -> dict:
         ob = self.scene.observe

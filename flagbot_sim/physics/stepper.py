@@ -7,7 +7,7 @@ caller keeps its last good state: a step never returns NaN or Inf.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse.linalg as spla
@@ -27,6 +27,7 @@ class StepStats:
     substeps: int = 0
     reductions: int = 0            # how many times the sub-step was halved
     line_search_cuts: int = 0
+    substep_dts: list = field(default_factory=list)   # the accepted sub-steps, in order (s)
 
 
 class Stepper:
@@ -69,6 +70,7 @@ class Stepper:
             cur = new
             remaining -= h
             stats.substeps += 1
+            stats.substep_dts.append(h)
             stats.dt_min = min(stats.dt_min, h)
             h = min(2.0 * h, dt)
         return cur, stats
@@ -81,7 +83,10 @@ class Stepper:
         model = self.model
         for d in self._drivers:
             d.begin_step(state, h)
+        # second-order predictor: for parts turning steadily it carries the centripetal term the linear one misses
         q = state.q + h * state.v
+        if state.a is not None:
+            q += h * h * state.a
         for e in self._prescribers:
             idx, val = e.prescribed()
             q[idx] = val
@@ -139,7 +144,7 @@ class Stepper:
         v = (q - state.q) / h
         fr = state.frames.copy()
         fr.commit(ctx.frames.t, ctx.frames.d1, ctx.frames.d2, ctx.frames.ref_twist)
-        new = State(state.t + h, q, v, fr, dict(state.extras))
+        new = State(state.t + h, q, v, fr, dict(state.extras), (v - state.v) / h)
         for d in self._drivers:
             d.commit(new)
         return new

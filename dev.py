@@ -1,0 +1,80 @@
+#!/usr/bin/env python3
+"""Set up the virtual environment and run the project's jobs with nothing but Python (3.10-3.13) and pip.
+
+    python3 dev.py run      # create .venv if needed, install, run the main job
+    python3 dev.py test     # create .venv if needed, install, run the test suite (extra args go to pytest)
+    python3 dev.py setup    # only create/update .venv
+
+The Makefile targets call this file. DDS traffic is kept on this machine: every job runs with
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import subprocess
+import sys
+import venv
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = ROOT / ".venv"
+PY = VENV / "bin" / "python"
+STAMP = VENV / ".flagbot_installed"
+INPUTS = ["requirements.txt", "requirements-test.txt", "setup.py", "package.xml"]
+
+
+def job_env() -> dict:
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("ROS_LOG_DIR", str(ROOT / ".ros_log"))
+    env.setdefault("MPLBACKEND", "Agg")
+    env["PATH"] = f"{VENV / 'bin'}{os.pathsep}{env.get('PATH', '')}"
+    return env
+
+
+def sh(*cmd: str | os.PathLike) -> None:
+    print("+", " ".join(map(str, cmd)), flush=True)
+    subprocess.run([str(c) for c in cmd], check=True, cwd=ROOT, env=job_env())
+
+
+def setup() -> None:
+    if not ((3, 10) <= sys.version_info[:2] <= (3, 13)):
+        sys.exit(f"dev.py: ROS 2 Jazzy wheels exist for CPython 3.10-3.13; this is {platform.python_version()}")
+    if platform.machine() not in ("x86_64", "AMD64"):
+        sys.exit(f"dev.py: ROS 2 Jazzy wheels exist for x86_64 only; this machine is {platform.machine()}")
+    if not PY.exists():
+        print(f"+ creating {VENV}", flush=True)
+        venv.create(VENV, with_pip=True)
+    digest = hashlib.sha256(b"".join((ROOT / f).read_bytes() for f in INPUTS)).hexdigest()
+    if STAMP.exists() and STAMP.read_text() == digest:
+        return
+    sh(PY, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
+    sh(PY, "-m", "pip", "install", "--quiet", "-r", "requirements-test.txt")
+    sh(PY, "-m", "pip", "install", "--quiet", "--no-deps", "-e", ".")
+    STAMP.write_text(digest)
+
+
+def run(args: list[str]) -> None:
+    setup()
+    sh(VENV / "bin" / "flagbot", "run", "design1", *args)
+
+
+def test(args: list[str]) -> None:
+    setup()
+    sh(PY, "-m", "pytest", "-q", "tests", *args)
+
+
+def main() -> None:
+    if len(sys.argv) < 2 or sys.argv[1] not in ("setup", "run", "test"):
+        sys.exit(__doc__)
+    cmd, rest = sys.argv[1], sys.argv[2:]
+    try:
+        {"setup": lambda a: setup(), "run": run, "test": test}[cmd](rest)
+    except subprocess.CalledProcessError as exc:
+        sys.exit(exc.returncode)
+
+
+if __name__ == "__main__":
+    main()

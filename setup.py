@@ -1,0 +1,38 @@
+"""flagbot_sim: an ament_python ROS 2 package that is also pip-installable.
+
+Executables are reachable two ways (see ../shared/ROS_NOTES.md): console scripts on PATH for pip users, and
+small wrapper executables installed through data_files into lib/flagbot_sim/ for `ros2 run flagbot_sim ...`.
+There is deliberately no setup.cfg moving install_scripts, because that would take the console scripts off PATH.
+"""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "flagbot_sim"
+
+# name -> module:function; each also has a wrapper in scripts/ installed to lib/flagbot_sim/
+EXECUTABLES = {
+    "flagbot": "flagbot_sim.cli:main",
+}
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(include=["flagbot_sim", "flagbot_sim.*"]),
+    package_data={"flagbot_sim": ["scenes/*.toml"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/scenes", sorted(glob("flagbot_sim/scenes/*.toml"))),
+        ("lib/" + package_name, ["scripts/" + name for name in EXECUTABLES]),
+    ],
+    python_requires=">=3.10",
+    install_requires=["numpy", "scipy"],
+    zip_safe=False,
+    maintainer="flagbot_sim developers",
+    maintainer_email="dev@flagbot.local",
+    description="Virtual soft flagellated robot in granular media: DER simulator, beam estimator, ROS 2 nodes",
+    license="MIT",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": [f"{name} = {target}" for name, target in EXECUTABLES.items()]},
+)
