@@ -87,3 +87,16 @@ def test_reset_restores_the_initial_state():
     sim2.run(0.2)
     assert np.array_equal(sim.state.q, sim2.state.q)      # deterministic replay after reset
     assert a["steps"] == 0
+
+
+@pytest.mark.parametrize("rigid_factor", [1e2, 1e3, 1e5])
+def test_rigid_parts_stay_rigid_without_slowing_newton(rigid_factor):
+    """Stiffer head/plate: smaller strain in the rigid parts, but no more Newton iterations per step."""
+    sim = small_robot(f"numerics.rigid_factor={rigid_factor}", "motor.omega_rpm=150")
+    sim.run(1.0)
+    assert sim.newton_iterations / sim.steps <= 4.0 and sim.reductions == 0
+    el, net = sim.model.elastic, sim.model.net
+    fr = el.trial_frames(sim.state.q, sim.state.frames)
+    stretch = np.abs(el.stretch_strain(fr))
+    flex = stretch[net.edge_elastic].max()
+    assert stretch[~net.edge_elastic].max() < 10.0 / rigid_factor * max(flex, 1e-9) + 1e-12
