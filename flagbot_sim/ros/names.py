@@ -1,0 +1,25 @@
+"""Topic and service names of the flagbot nodes, in one place (msg_docs/ documents each; a test compares).
+
+Names without a leading slash are relative: they follow the node's namespace (``--ros-args -r __ns:=/bot1``).
+"""
+CMD_OMEGA = "cmd_omega"              # std_msgs/Float64, motor speed command omega_T (rad/s)
+CLOCK = "/clock"                     # rosgraph_msgs/Clock, simulation time
+HEAD_POSE = "head_pose"              # geometry_msgs/PoseStamped
+ODOM = "odom"                        # nav_msgs/Odometry
+JOINT_STATES = "joint_states"        # sensor_msgs/JointState: head_spin, flagella_spin
+OMEGA_H = "omega_h"                  # std_msgs/Float64 (rad/s)
+OMEGA_T = "omega_t"                  # std_msgs/Float64 (rad/s)
+SPEED = "speed"                      # std_msgs/Float64 (m/s, positive = head first)
+MARKERS = "markers"                  # visualization_msgs/MarkerArray
+DIAGNOSTICS = "/diagnostics"         # diagnostic_msgs/DiagnosticArray
+BEAM_SPEED = "beam/speed"            # std_msgs/Float64 (m/s)
+BEAM_OMEGA_H = "beam/omega_h"        # std_msgs/Float64 (rad/s)
+BEAM_OMEGA_T = "beam/omega_t"        # std_msgs/Float64 (rad/s)
+
+RESET = "reset"                      # std_srvs/Trigger
+PAUSE = "pause"                      # std_srvs/SetBool
+
+SIM_PUBLISHED = [CLOCK, HEAD_POSE, ODOM, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED, MARKERS, DIAGNOSTICS]
+BEAM_PUBLISHED = [BEAM_SPEED, BEAM_OMEGA_H, BEAM_OMEGA_T]
+#: what the recorder records by default: every flagbot topic, the command stream and the clock
+DEFAULT_RECORD_TOPICS = [CMD_OMEGA] + SIM_PUBLISHED + BEAM_PUBLISHED
