@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Set up the virtual environment and run the project's jobs with nothing but Python (3.10-3.13) and pip.
 
-    python3 dev.py run      # create .venv if needed, install, run the main job
+    python3 dev.py run      # create .venv if needed, install, run the main job (flagbot demo: ROS nodes)
     python3 dev.py test     # create .venv if needed, install, run the test suite (extra args go to pytest)
     python3 dev.py setup    # only create/update .venv
 
@@ -58,7 +58,7 @@ def setup() -> None:
 
 def run(args: list[str]) -> None:
     setup()
-    sh(VENV / "bin" / "flagbot", "run", "design1", *args)
+    sh(VENV / "bin" / "flagbot", "demo", *args)
 
 
 def test(args: list[str]) -> None:

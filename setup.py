@@ -4,7 +4,9 @@ Executables are reachable two ways (see ../shared/ROS_NOTES.md): console scripts
 small wrapper executables installed through data_files into lib/flagbot_sim/ for `ros2 run flagbot_sim ...`.
 There is deliberately no setup.cfg moving install_scripts, because that would take the console scripts off PATH.
 """
+import re
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
@@ -13,11 +15,14 @@ package_name = "flagbot_sim"
 # name -> module:function; each also has a wrapper in scripts/ installed to lib/flagbot_sim/
 EXECUTABLES = {
     "flagbot": "flagbot_sim.cli:main",
+    "sim_node": "flagbot_sim.ros.sim_node:main",
+    "beam_node": "flagbot_sim.ros.beam_node:main",
+    "cmd_profile": "flagbot_sim.ros.cmd_profile:main",
 }
 
 setup(
     name=package_name,
-    version="0.1.0",
+    version=re.search(r'__version__ = "(.+)"', Path("flagbot_sim/__init__.py").read_text()).group(1),
     packages=find_packages(include=["flagbot_sim", "flagbot_sim.*"]),
     package_data={"flagbot_sim": ["scenes/*.toml"]},
     data_files=[

@@ -14,7 +14,8 @@ import sys
 from .scene import RPM, SceneError, load_scene
 
 #: modules that contribute subcommands (each has register(subparsers)); missing ones are skipped
-COMMAND_MODULES = ["flagbot_sim.beam.cli", "flagbot_sim.bench", "flagbot_sim.sweep", "flagbot_sim.bagtools"]
+COMMAND_MODULES = ["flagbot_sim.beam.cli", "flagbot_sim.ros.demo", "flagbot_sim.bench", "flagbot_sim.sweep",
+                   "flagbot_sim.bagtools"]
 
 
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:

@@ -93,6 +93,37 @@ class Simulation:
         pos = self.observer.position(self.state)
         return pos.copy(), quaternion_from_matrix(self.observer.head_orientation(self.state))
 
+    def head_velocity(self) -> np.ndarray:
+        """Velocity of the head centre over the last step (m/s, simulation frame)."""
+        net = self.model.net
+        node = net.head_nodes[1] if len(net.head_nodes) else net.joint_node
+        return self.state.v[3 * node: 3 * node + 3].copy()
+
+    def head_angular_velocity(self) -> np.ndarray:
+        """Angular velocity of the head body over the last step (rad/s, simulation frame)."""
+        if self.steps == 0:
+            return np.zeros(3)
+        R0 = self.observer.head_orientation(self._prev_state)
+        R1 = self.observer.head_orientation(self.state)
+        dR = R1 @ R0.T
+        # rotation vector of dR (log map), robust near zero angle
+        c = np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)
+        angle = math.acos(c)
+        w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+        scale = 0.5 if angle < 1e-8 else angle / (2.0 * math.sin(angle))
+        return scale * w / (self.state.t - self._prev_state.t)
+
+    def motor_torque(self) -> float:
+        """Torque the motor applies to the shaft (N m; positive drives a positive omega_T): the motor hinge's
+        twisting moment. At steady state it equals the head's Stokes torque C2 8 pi mu R_h^3 omega_h."""
+        net, el = self.model.net, self.model.elastic
+        if net.motor_hinge < 0:
+            return 0.0
+        fr = el.trial_frames(self.state.q, self.state.frames)
+        _, _, tau = el.hinge_strains(self.state.q, fr)
+        h = net.motor_hinge
+        return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h]))
+
     def flagella_centrelines(self) -> list[np.ndarray]:
         x = self.positions()
         return [x[nodes] for nodes in self.model.net.flagella_nodes]

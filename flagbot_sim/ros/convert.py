@@ -1,0 +1,151 @@
+"""Simulation observations -> ROS messages. Pure functions: no node, no publishing.
+
+Frames (REP 103, SI units): the fixed frame (parameter ``frame_id``, default ``world``) is the simulation frame
+turned by pi about z and centred on the head centre at rest, so that the robot starts at the origin facing +x
+and swims along +x. The head's body
+frame (``child_frame_id``, default ``head``) has x pointing forward (towards the head's front), z along the
+simulation's z at rest. Every stamp is simulation time, the same as /clock.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, PoseStamped, Quaternion, Vector3
+from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import ColorRGBA, Float64
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..physics.observe import quaternion_from_matrix
+
+#: simulation frame -> ROS fixed frame (rotation by pi about z)
+WORLD_FROM_SIM = np.diag([-1.0, -1.0, 1.0])
+#: head body frame (x forward) from the head edge's material frame (t, m1, m2): (-t, -m1, m2)
+BODY_FROM_MATERIAL = np.diag([-1.0, -1.0, 1.0])
+JOINT_NAMES = ["head_spin", "flagella_spin"]
+
+
+def stamp(t: float) -> Time:
+    sec = math.floor(t)
+    nsec = int(round((t - sec) * 1e9))
+    if nsec >= 1_000_000_000:
+        sec, nsec = sec + 1, nsec - 1_000_000_000
+    return Time(sec=int(sec), nanosec=nsec)
+
+
+def to_world(points: np.ndarray, origin=np.zeros(3)) -> np.ndarray:
+    """Simulation-frame points in the fixed frame, whose origin is ``origin`` (the head centre at rest)."""
+    return (np.asarray(points) - origin) @ WORLD_FROM_SIM.T
+
+
+def head_rotation_world(material: np.ndarray) -> np.ndarray:
+    """Rotation of the head body frame in the fixed frame, from the head edge's material frame columns."""
+    return WORLD_FROM_SIM @ material @ BODY_FROM_MATERIAL
+
+
+def _point(p) -> Point:
+    return Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _quat(q) -> Quaternion:
+    return Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+
+
+def clock_msg(t: float) -> Clock:
+    return Clock(clock=stamp(t))
+
+
+def float_msg(x: float) -> Float64:
+    return Float64(data=float(x))
+
+
+def pose_msg(t: float, frame: str, position_w, R_w) -> PoseStamped:
+    m = PoseStamped()
+    m.header.stamp = stamp(t)
+    m.header.frame_id = frame
+    m.pose.position = _point(position_w)
+    m.pose.orientation = _quat(quaternion_from_matrix(R_w))
+    return m
+
+
+def odometry_msg(t: float, frame: str, child: str, position_w, R_w, v_w, omega_w) -> Odometry:
+    """Pose in the fixed frame; twist in the head body frame (linear.x = forward speed, angular.x = spin)."""
+    m = Odometry()
+    m.header.stamp = stamp(t)
+    m.header.frame_id = frame
+    m.child_frame_id = child
+    m.pose.pose.position = _point(position_w)
+    m.pose.pose.orientation = _quat(quaternion_from_matrix(R_w))
+    vb = R_w.T @ np.asarray(v_w)
+    wb = R_w.T @ np.asarray(omega_w)
+    m.twist.twist.linear = Vector3(x=float(vb[0]), y=float(vb[1]), z=float(vb[2]))
+    m.twist.twist.angular = Vector3(x=float(wb[0]), y=float(wb[1]), z=float(wb[2]))
+    return m
+
+
+def joint_state_msg(t: float, phi_h: float, phi_t: float, omega_h: float, omega_t: float,
+                    torque: float) -> JointState:
+    """Head and flagella spin: accumulated angle (rad), rate (rad/s), motor torque (N m). Every array filled."""
+    m = JointState()
+    m.header.stamp = stamp(t)
+    m.name = list(JOINT_NAMES)
+    m.position = [float(phi_h), float(phi_t)]
+    m.velocity = [float(omega_h), float(omega_t)]
+    m.effort = [float(torque), float(torque)]
+    return m
+
+
+def _color(r, g, b, a=1.0) -> ColorRGBA:
+    return ColorRGBA(r=float(r), g=float(g), b=float(b), a=float(a))
+
+
+def markers_msg(t: float, frame: str, flagella_w: list, head_centre_w, head_radius: float, plate_w: list,
+                rod_radius: float) -> MarkerArray:
+    """One LINE_STRIP per flagellum, a SPHERE for the head, a LINE_LIST for the plate arms and sockets."""
+    arr = MarkerArray()
+    st = stamp(t)
+    for i, line in enumerate(flagella_w):
+        m = Marker(ns="flagella", id=i, type=Marker.LINE_STRIP, action=Marker.ADD)
+        m.header.stamp = st
+        m.header.frame_id = frame
+        m.pose.orientation.w = 1.0
+        m.scale.x = 2.0 * rod_radius
+        m.color = _color(0.1, 0.55, 0.25)
+        m.points = [_point(p) for p in line]
+        arr.markers.append(m)
+    if head_centre_w is not None:
+        m = Marker(ns="head", id=0, type=Marker.SPHERE, action=Marker.ADD)
+        m.header.stamp = st
+        m.header.frame_id = frame
+        m.pose.position = _point(head_centre_w)
+        m.pose.orientation.w = 1.0
+        m.scale.x = m.scale.y = m.scale.z = 2.0 * head_radius
+        m.color = _color(0.95, 0.8, 0.1)
+        arr.markers.append(m)
+    m = Marker(ns="plate", id=0, type=Marker.LINE_LIST, action=Marker.ADD)
+    m.header.stamp = st
+    m.header.frame_id = frame
+    m.pose.orientation.w = 1.0
+    m.scale.x = 2.0 * rod_radius
+    m.color = _color(0.3, 0.3, 0.3)
+    for arm in plate_w:
+        for a, b in zip(arm[:-1], arm[1:]):
+            m.points += [_point(a), _point(b)]
+    arr.markers.append(m)
+    return arr
+
+
+LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
+
+
+def diagnostics_msg(t: float, name: str, level: str, message: str, values: dict) -> DiagnosticArray:
+    arr = DiagnosticArray()
+    arr.header.stamp = stamp(t)
+    s = DiagnosticStatus(level=LEVELS[level], name=name, message=message, hardware_id="flagbot_sim")
+    s.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    arr.status = [s]
+    return arr

@@ -1,0 +1,207 @@
+"""`flagbot demo`: the whole virtual device end to end, as separate ROS 2 processes on this machine.
+
+Starts sim_node (as fast as possible, /clock published), beam_node and cmd_profile (a step profile of omega_T
+timed on /clock), watches them with a monitor node in this process, then prints per omega_T step the simulated
+steady omega_h, omega_t and speed next to the beam-theory prediction. DDS stays on localhost
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of its own.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+from ..progress import ProgressBar
+from ..scene import RPM, load_scene
+
+
+def register(sub) -> None:
+    p = sub.add_parser("demo", help="run sim_node + beam_node + a command profile and compare DER with beam theory")
+    p.add_argument("--scene", default="design1", help="scene name or .toml path (default design1)")
+    p.add_argument("--n", type=int, default=0, help="number of flagella (default: the scene's)")
+    p.add_argument("--rpm", default="50,100,150", help="omega_T steps in rpm (default 50,100,150)")
+    p.add_argument("--step-duration", type=float, default=20.0, help="simulated seconds per step (default 20)")
+    p.add_argument("--regime", default="nlb", choices=["lb", "nlb-nohead", "nlb"], help="beam regime")
+    p.add_argument("--real-time-factor", type=float, default=0.0, help="0 = as fast as possible (default)")
+    p.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: one derived from the pid)")
+    p.add_argument("--record", default=None, help="also record the run to this MCAP file")
+    p.add_argument("--json", action="store_true", help="print the table as JSON")
+    p.set_defaults(func=cmd_demo)
+
+
+def _child_env(domain: int) -> dict:
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(domain)
+    env.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="flagbot_demo_log_"))
+    return env
+
+
+def step_table(samples: dict, segments: list, beam: list) -> list[dict]:
+    """Average the stamped samples over the last quarter of each step; take the beam value of the step."""
+    rows = []
+    for (t0, t1, w) in segments:
+        a = t1 - 0.25 * (t1 - t0)
+
+        def mean(key):
+            xs = [v for (t, v) in samples[key] if a <= t <= t1]
+            return sum(xs) / len(xs) if xs else math.nan
+        b = [v for (t, omega, v) in beam if t0 <= t <= t1 and abs(omega - w) < 1e-9]
+        bh, bt, bv = b[-1] if b else (math.nan, math.nan, math.nan)
+        rows.append({"omega_T": w, "omega_h": mean("omega_h"), "omega_t": mean("omega_t"), "v": mean("v"),
+                     "beam_omega_h": bh, "beam_omega_t": bt, "beam_v": bv, "t0": t0, "t1": t1})
+    return rows
+
+
+def format_table(rows: list[dict], scene: str, n: int, regime: str) -> str:
+    lines = [f"{scene}, n = {n}: DER simulation (sim_node) vs beam theory ({regime}, beam_node); "
+             "steady values over the last quarter of each step",
+             f"{'omega_T':>14s} | {'omega_h (rad/s)':>17s} | {'omega_t (rad/s)':>17s} | {'v (mm/s)':>17s} | "
+             f"{'omega_h/omega_T':>15s}",
+             f"{'rad/s (rpm)':>14s} | {'DER':>8s} {'beam':>8s} | {'DER':>8s} {'beam':>8s} | {'DER':>8s} {'beam':>8s} | "
+             f"{'DER':>7s} {'beam':>7s}"]
+    for r in rows:
+        w = r["omega_T"]
+        lines.append(f"{w:7.3f} ({w / RPM:4.0f}) | {r['omega_h']:8.4f} {r['beam_omega_h']:8.4f} | "
+                     f"{r['omega_t']:8.4f} {r['beam_omega_t']:8.4f} | {1e3 * r['v']:8.4f} {1e3 * r['beam_v']:8.4f} | "
+                     f"{100 * r['omega_h'] / w:6.1f}% {100 * r['beam_omega_h'] / w:6.1f}%")
+    return "\n".join(lines)
+
+
+def cmd_demo(args) -> int:
+    from ..profile import parse
+    scene = load_scene(args.scene, [f"robot.n_flagella={args.n}"] if args.n else [])
+    n = scene.robot.n_flagella
+    rpms = [float(x) for x in args.rpm.split(",") if x.strip()]
+    spec = ",".join(f"{r:g}:{args.step_duration:g}" for r in rpms)
+    profile = parse("steps", [spec], rpm=True)
+    domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
+    env = _child_env(domain)
+    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR")})
+    py = [sys.executable, "-m"]
+    common = ["-p", f"scene:={args.scene}", "-p", f"n_flagella:={n}"]
+    cmds = {
+        "sim_node": py + ["flagbot_sim.ros.sim_node", "--ros-args", *common, "-p", "start_paused:=true",
+                          "-p", f"real_time_factor:={args.real_time_factor}"],
+        "beam_node": py + ["flagbot_sim.ros.beam_node", "--ros-args", *common, "-p", f"regime:={args.regime}"],
+        "cmd_profile": py + ["flagbot_sim.ros.cmd_profile", "steps", spec, "--rpm", "--sim-time", "--t0", "0",
+                             "--quiet"],
+    }
+    if args.record:
+        cmds["record"] = py + ["flagbot_sim.ros.recorder", "-o", args.record]
+    logs = {k: tempfile.TemporaryFile(mode="w+") for k in cmds}
+    procs = {k: subprocess.Popen(c, env=env, stdout=logs[k], stderr=subprocess.STDOUT) for k, c in cmds.items()}
+    try:
+        samples, beam = _monitor(profile.duration, procs, args.json)
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        codes = {}
+        for k, p in procs.items():
+            try:
+                codes[k] = p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                codes[k] = "killed"
+    problems = []
+    for k, f in logs.items():
+        f.seek(0)
+        text = f.read()
+        if codes[k] not in (0, -signal.SIGINT) or "Traceback" in text:
+            problems.append(f"{k} exited with {codes[k]}:\n{text[-2000:]}")
+    rows = step_table(samples, profile.segments(), beam)
+    if args.json:
+        import json
+        print(json.dumps({"scene": args.scene, "n_flagella": n, "regime": args.regime, "steps": rows}))
+    else:
+        print(format_table(rows, scene.scene.name, n, args.regime))
+        if args.record:
+            print(f"recorded to {args.record}")
+    for p in problems:
+        print(p, file=sys.stderr)
+    return 1 if problems or any(math.isnan(r["omega_h"]) for r in rows) else 0
+
+
+def _monitor(duration: float, procs: dict, quiet: bool):
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    from . import names
+
+    rclpy.init()
+    node = Node("flagbot_demo_monitor")
+    samples = {"omega_h": [], "omega_t": [], "v": []}
+    beam_now = {"v": math.nan, "h": math.nan, "t": math.nan}
+    beam: list = []
+    state = {"clock": 0.0, "cmd": math.nan}
+
+    def t_of(stamp):
+        return stamp.sec + 1e-9 * stamp.nanosec
+
+    def on_js(m):
+        t = t_of(m.header.stamp)
+        samples["omega_h"].append((t, m.velocity[0]))
+        samples["omega_t"].append((t, m.velocity[1]))
+
+    def on_odom(m):
+        samples["v"].append((t_of(m.header.stamp), m.twist.twist.linear.x))
+
+    def on_beam(key):
+        def cb(m):
+            beam_now[key] = m.data
+            beam.append((state["clock"], state["cmd"], (beam_now["h"], beam_now["t"], beam_now["v"])))
+        return cb
+
+    qos = QoSProfile(depth=50)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node.create_subscription(JointState, names.JOINT_STATES, on_js, qos)
+    node.create_subscription(Odometry, names.ODOM, on_odom, qos)
+    node.create_subscription(Clock, names.CLOCK, lambda m: state.__setitem__("clock", t_of(m.clock)), qos)
+    node.create_subscription(Float64, names.CMD_OMEGA, lambda m: state.__setitem__("cmd", m.data), qos)
+    node.create_subscription(Float64, names.BEAM_SPEED, on_beam("v"), latched)
+    node.create_subscription(Float64, names.BEAM_OMEGA_H, on_beam("h"), latched)
+    node.create_subscription(Float64, names.BEAM_OMEGA_T, on_beam("t"), latched)
+    from std_srvs.srv import SetBool
+    pause = node.create_client(SetBool, names.PAUSE)
+    bar = ProgressBar(duration, label="demo (simulated time)", enabled=not quiet)
+    wall0 = time.monotonic()
+    try:
+        # everyone connected before simulated time starts: the command and beam streams, then unpause
+        def ready():
+            return (node.count_publishers(names.CMD_OMEGA) >= 1 and node.count_publishers(names.BEAM_SPEED) >= 1
+                    and node.count_publishers(names.CLOCK) >= 1 and pause.service_is_ready())
+        while not ready():
+            rclpy.spin_once(node, timeout_sec=0.1)
+            if time.monotonic() - wall0 > 60:
+                raise RuntimeError("the nodes did not appear within 60 s")
+            dead = [k for k, p in procs.items() if p.poll() is not None]
+            if dead:
+                raise RuntimeError(f"{', '.join(dead)} stopped early")
+        future = pause.call_async(SetBool.Request(data=False))
+        rclpy.spin_until_future_complete(node, future, timeout_sec=10)
+        while rclpy.ok() and state["clock"] < duration + 0.2:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            bar.update(min(state["clock"], duration), f"omega_T = {state['cmd']:.3f} rad/s")
+            dead = [k for k, p in procs.items() if p.poll() is not None]
+            if dead:
+                raise RuntimeError(f"{', '.join(dead)} stopped early")
+            if time.monotonic() - wall0 > 60 + 20 * duration:
+                raise RuntimeError("the simulation did not advance: no /clock from sim_node")
+    finally:
+        bar.close()
+        node.destroy_node()
+        rclpy.shutdown()
+    # keep only beam values that belong to the command active when they arrived
+    beam_rows = [(t, cmd, v) for (t, cmd, v) in beam if not any(math.isnan(x) for x in v)]
+    return samples, beam_rows

@@ -1,0 +1,70 @@
+"""Node parameters declared from one spec list, so the descriptors, `--help` and msg_docs/ say the same thing."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.parameter import Parameter
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    default: object
+    description: str
+    unit: str = ""
+    range: tuple | None = None          # (low, high) inclusive
+    choices: tuple = field(default_factory=tuple)
+
+    @property
+    def type_name(self) -> str:
+        if isinstance(self.default, bool):
+            return "bool"
+        if isinstance(self.default, int):
+            return "int"
+        if isinstance(self.default, float):
+            return "double"
+        if isinstance(self.default, list):
+            return "string[]"
+        return "string"
+
+    def descriptor(self) -> ParameterDescriptor:
+        d = ParameterDescriptor(description=self.description + (f" [{self.unit}]" if self.unit else ""))
+        if self.choices:
+            d.additional_constraints = "one of: " + ", ".join(self.choices)
+        if self.range is not None:
+            lo, hi = self.range
+            if isinstance(self.default, int) and not isinstance(self.default, bool):
+                d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+            else:
+                d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+        return d
+
+    def help_line(self) -> str:
+        rng = f"  range [{self.range[0]}, {self.range[1]}]" if self.range else ""
+        ch = f"  one of {', '.join(self.choices)}" if self.choices else ""
+        unit = f" {self.unit}" if self.unit else ""
+        return f"  {self.name} ({self.type_name}, default {self.default!r}{unit}){rng}{ch}\n      {self.description}"
+
+
+def declare(node, specs: list[ParamSpec]) -> None:
+    for s in specs:
+        if isinstance(s.default, list):
+            # an empty list cannot carry its element type: declare uninitialised, then set a typed []
+            node.declare_parameter(s.name, Parameter.Type.STRING_ARRAY, s.descriptor())
+            try:
+                node.get_parameter(s.name)
+            except ParameterUninitializedException:
+                node.set_parameters([Parameter(s.name, Parameter.Type.STRING_ARRAY, list(s.default))])
+        else:
+            node.declare_parameter(s.name, s.default, s.descriptor())
+
+
+def help_text(prog: str, summary: str, specs: list[ParamSpec], topics: str = "") -> str:
+    lines = [f"usage: {prog} [--ros-args -p NAME:=VALUE ...]", "", summary, "", "parameters:"]
+    lines += [s.help_line() for s in specs]
+    if topics:
+        lines += ["", topics]
+    lines += ["", "Full interface (topics, units, frames, QoS, services): msg_docs/ in the package."]
+    return "\n".join(lines)

@@ -1,0 +1,99 @@
+"""Helpers for tests that talk to flagbot nodes running in other processes over real DDS (localhost only).
+
+conftest.py has already set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, a ROS_DOMAIN_ID of this test process and
+ROS_LOG_DIR; child processes inherit them unchanged (the rclpy wheels need the parent's environment).
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import rclpy
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DISCOVERY_TIMEOUT = 20.0
+
+
+class NodeProcess:
+    """A node started as `python -m MODULE ARGS`; stop() sends SIGINT and returns (code, output)."""
+
+    def __init__(self, module: str, *args: str):
+        env = dict(os.environ)
+        env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+        assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+        self.log = tempfile.TemporaryFile(mode="w+")
+        self.proc = subprocess.Popen([sys.executable, "-m", module, *args], env=env, stdout=self.log,
+                                     stderr=subprocess.STDOUT, cwd=ROOT)
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def output(self) -> str:
+        self.log.seek(0)
+        return self.log.read()
+
+    def stop(self, sig=signal.SIGINT, timeout=20.0):
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            code = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = "killed"
+        return code, self.output()
+
+
+def spin_until(node: Node, predicate, timeout: float, what: str = "condition") -> None:
+    t0 = time.monotonic()
+    while not predicate():
+        rclpy.spin_once(node, timeout_sec=0.05)
+        if time.monotonic() - t0 > timeout:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+def call(node: Node, client, request, timeout: float = 10.0):
+    spin_until(node, client.service_is_ready, DISCOVERY_TIMEOUT, f"service {client.srv_name}")
+    future = client.call_async(request)
+    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+    assert future.done(), f"no answer from {client.srv_name}"
+    return future.result()
+
+
+def set_params(node: Node, target: str, **values):
+    """Set parameters of another node; returns the list of SetParametersResult."""
+    cli = node.create_client(SetParameters, f"/{target}/set_parameters")
+    req = SetParameters.Request()
+    req.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+    try:
+        return call(node, cli, req).results
+    finally:
+        node.destroy_client(cli)
+
+
+def get_params(node: Node, target: str, names: list[str]) -> dict:
+    cli = node.create_client(GetParameters, f"/{target}/get_parameters")
+    try:
+        res = call(node, cli, GetParameters.Request(names=names))
+    finally:
+        node.destroy_client(cli)
+    return {n: Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value for n, v in zip(names, res.values)}
+
+
+def describe_all_params(node: Node, target: str) -> dict:
+    lst = node.create_client(ListParameters, f"/{target}/list_parameters")
+    desc = node.create_client(DescribeParameters, f"/{target}/describe_parameters")
+    try:
+        names = list(call(node, lst, ListParameters.Request()).result.names)
+        ds = call(node, desc, DescribeParameters.Request(names=names)).descriptors
+    finally:
+        node.destroy_client(lst)
+        node.destroy_client(desc)
+    return {d.name: d for d in ds}

@@ -1,0 +1,231 @@
+"""sim_node as a device: another process commands it over DDS and receives its outputs (real rclpy)."""
+import math
+import signal
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import MarkerArray
+
+from flagbot_sim.physics import Simulation
+from flagbot_sim.scene import load_scene
+
+from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, call, get_params, set_params, spin_until
+
+SCENE = ["design2", ["flagellum.length=0.05"]]     # short flagella: steady within a couple of seconds
+OMEGA = 10.0
+
+
+def t_of(stamp):
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+class Listener:
+    """Collects everything sim_node publishes, and asserts nothing non-finite ever arrives."""
+
+    def __init__(self, node: Node):
+        self.node = node
+        self.msgs = {k: [] for k in ("clock", "pose", "odom", "joints", "omega_h", "omega_t", "speed", "markers",
+                                     "diag")}
+        self.non_finite = []
+        sub = node.create_subscription
+        sub(Clock, "/clock", self._cb("clock"), 50)
+        sub(PoseStamped, "head_pose", self._cb("pose"), 50)
+        sub(Odometry, "odom", self._cb("odom"), 50)
+        sub(JointState, "joint_states", self._cb("joints"), 50)
+        sub(Float64, "omega_h", self._cb("omega_h"), 50)
+        sub(Float64, "omega_t", self._cb("omega_t"), 50)
+        sub(Float64, "speed", self._cb("speed"), 50)
+        sub(MarkerArray, "markers", self._cb("markers"), 10)
+        sub(DiagnosticArray, "/diagnostics", self._cb("diag"), 10)
+        self.cmd = node.create_publisher(Float64, "cmd_omega", 10)
+        self.pause = node.create_client(SetBool, "pause")
+        self.reset = node.create_client(Trigger, "reset")
+
+    def _cb(self, key):
+        def cb(m):
+            self.msgs[key].append(m)
+            for x in _floats(m):
+                if not math.isfinite(x):
+                    self.non_finite.append((key, x))
+        return cb
+
+    @property
+    def clock(self) -> float:
+        return t_of(self.msgs["clock"][-1].clock) if self.msgs["clock"] else 0.0
+
+    def diag_values(self) -> dict:
+        s = self.msgs["diag"][-1].status[0]
+        return {kv.key: kv.value for kv in s.values} | {"_level": s.level, "_message": s.message}
+
+    def command(self, w: float) -> None:
+        spin_until(self.node, lambda: self.cmd.get_subscription_count() >= 1, DISCOVERY_TIMEOUT, "sim_node")
+        self.cmd.publish(Float64(data=w))
+
+    def run_until(self, t: float, timeout: float = 120.0) -> None:
+        spin_until(self.node, lambda: self.clock >= t, timeout, f"simulation time {t} s")
+
+
+def _floats(m):
+    if isinstance(m, float):
+        yield m
+    elif isinstance(m, (list, tuple)) or type(m).__name__ == "array":
+        for x in m:
+            yield from _floats(x)
+    elif hasattr(m, "get_fields_and_field_types"):
+        for f in m.get_fields_and_field_types():
+            yield from _floats(getattr(m, f))
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    node = Node("sim_node_test")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+@pytest.fixture
+def sim_node(ros):
+    proc = NodeProcess("flagbot_sim.ros.sim_node", "--ros-args", "-p", f"scene:={SCENE[0]}",
+                       "-p", f"scene_overrides:={SCENE[1]!r}".replace("'", '"'), "-p", "real_time_factor:=0.0",
+                       "-p", "start_paused:=true", "-p", "publish_rate:=50.0")
+    lis = Listener(ros)
+    yield proc, lis
+    code, out = proc.stop()
+    assert code == 0 and "Traceback" not in out, out
+
+
+def start(ros, lis, omega=OMEGA):
+    lis.command(omega)
+    spin_until(ros, lambda: lis.msgs["clock"], DISCOVERY_TIMEOUT, "/clock")
+    call(ros, lis.pause, SetBool.Request(data=False))
+
+
+def window_mean(stamped, t0, t1):
+    xs = [v for t, v in stamped if t0 <= t <= t1]
+    assert xs, f"no samples in [{t0}, {t1}]"
+    return float(np.mean(xs))
+
+
+def test_commanded_robot_publishes_everything_and_matches_the_library(ros, sim_node):
+    proc, lis = sim_node
+    start(ros, lis)
+    lis.run_until(3.0)
+    for key in ("clock", "pose", "odom", "joints", "omega_h", "omega_t", "speed", "markers", "diag"):
+        assert lis.msgs[key], f"nothing received on {key}"
+    assert not lis.non_finite
+    js = [(t_of(m.header.stamp), m.velocity) for m in lis.msgs["joints"]]
+    assert all(len(m.position) == len(m.velocity) == len(m.effort) == 2 for m in lis.msgs["joints"])
+    w_h = window_mean([(t, v[0]) for t, v in js], 2.0, 3.0)
+    w_t = window_mean([(t, v[1]) for t, v in js], 2.0, 3.0)
+    assert w_h + w_t == pytest.approx(OMEGA, rel=0.01) and w_h > 0 and w_t > 0
+    v = window_mean([(t_of(m.header.stamp), m.twist.twist.linear.x) for m in lis.msgs["odom"]], 2.0, 3.0)
+    # the library, same scene, same command from t = 0 (the node was paused until the command arrived)
+    sim = Simulation(load_scene(SCENE[0], SCENE[1]))
+    sim.set_omega(OMEGA)
+    speeds, rates_h = [], []
+    while sim.time < 3.0 - 1e-9:
+        sim.step()
+        if sim.time >= 2.0 - 1e-9:
+            speeds.append(sim.observer.speed)
+            rates_h.append(sim.observer.rate_h)
+    assert v == pytest.approx(np.mean(speeds), rel=0.01) and v > 0
+    assert w_h == pytest.approx(np.mean(rates_h), rel=0.01)
+    # odometry and head_pose agree, the head moves forward (+x) from the origin
+    last = lis.msgs["pose"][-1].pose.position
+    assert last.x > 0 and abs(last.y) < 1e-6 and abs(last.z) < 1e-6
+    # markers: one line strip per flagellum, the head, the plate
+    ma = lis.msgs["markers"][-1]
+    assert sorted(m.ns for m in ma.markers) == ["flagella", "flagella", "head", "plate"]
+    assert all(len(m.points) == 13 for m in ma.markers if m.ns == "flagella")   # 12 edges of 4.17 mm
+    spin_until(ros, lambda: lis.msgs["diag"], 10, "diagnostics")
+    d = lis.diag_values()
+    assert d["_level"] == DiagnosticStatus.OK and float(d["omega_T_rad_s"]) == pytest.approx(OMEGA)
+
+
+def test_bad_commands_are_rejected_and_the_next_good_one_is_obeyed(ros, sim_node):
+    proc, lis = sim_node
+    start(ros, lis, 4.0)
+    lis.run_until(0.5)
+    for bad in (math.nan, math.inf, -math.inf, 1e9, -60.0):
+        lis.cmd.publish(Float64(data=bad))
+    t_bad = lis.clock
+    lis.run_until(t_bad + 1.0)
+    assert proc.alive()
+    spin_until(ros, lambda: lis.msgs["diag"] and int(lis.diag_values()["rejected_commands"]) >= 5, 10,
+               "rejections in diagnostics")
+    assert float(lis.diag_values()["omega_T_rad_s"]) == pytest.approx(4.0)     # the last good command stayed
+    lis.cmd.publish(Float64(data=7.0))
+    t_good = lis.clock
+    lis.run_until(t_good + 1.5)
+    js = [(t_of(m.header.stamp), m.velocity) for m in lis.msgs["joints"]]
+    rate_sum = window_mean([(t, v[0] + v[1]) for t, v in js], lis.clock - 0.5, lis.clock)
+    assert rate_sum == pytest.approx(7.0, rel=0.01)
+    assert not lis.non_finite
+
+
+def test_invalid_parameters_are_refused_with_a_reason(ros, sim_node):
+    proc, lis = sim_node
+    start(ros, lis)
+    cases = {
+        "n_flagella": (99, "n_flagella"),
+        "scene": ("design9", "unknown scene"),
+        "scene_overrides": (["flagellum.length=-1"], "flagellum.length"),
+        "publish_rate": (0.0, "publish_rate"),
+        "real_time_factor": (-1.0, "real_time_factor"),
+        "frame_id": ("", "frame_id"),
+    }
+    for name, (value, word) in cases.items():
+        (res,) = set_params(ros, "sim_node", **{name: value})
+        assert not res.successful and word in res.reason, (name, res.reason)
+    assert get_params(ros, "sim_node", ["n_flagella", "scene"]) == {"n_flagella": 0, "scene": "design2"}
+    # a valid change is applied: three flagella now
+    (res,) = set_params(ros, "sim_node", n_flagella=3)
+    assert res.successful
+    n0 = len(lis.msgs["markers"])
+    spin_until(ros, lambda: len(lis.msgs["markers"]) > n0 + 2, 20, "markers after the rebuild")
+    assert [m.ns for m in lis.msgs["markers"][-1].markers].count("flagella") == 3
+
+
+def test_reset_returns_the_robot_to_the_start_and_pause_stops_time(ros, sim_node):
+    proc, lis = sim_node
+    start(ros, lis)
+    lis.run_until(2.0)
+    assert lis.msgs["pose"][-1].pose.position.x > 1e-5
+    call(ros, lis.pause, SetBool.Request(data=True))
+    # paused: the clock stands still while the node keeps publishing
+    n1 = len(lis.msgs["clock"])
+    spin_until(ros, lambda: len(lis.msgs["clock"]) > n1 + 10, 10, "clock ticks while paused")
+    ticks = [t_of(m.clock) for m in lis.msgs["clock"][n1:]]
+    assert max(ticks) == min(ticks) >= 2.0
+    res = call(ros, lis.reset, Trigger.Request())
+    assert res.success
+    n0 = len(lis.msgs["pose"])
+    spin_until(ros, lambda: len(lis.msgs["pose"]) > n0 + 2, 10, "poses after reset")
+    p = lis.msgs["pose"][-1].pose
+    assert abs(p.position.x) < 1e-12 and abs(p.position.y) < 1e-12 and abs(p.orientation.w) > 1 - 1e-12
+    j = lis.msgs["joints"][-1]
+    assert j.position[0] == 0.0 and j.position[1] == 0.0
+    assert t_of(lis.msgs["pose"][-1].header.stamp) >= max(ticks)     # the clock never runs backwards
+    call(ros, lis.pause, SetBool.Request(data=False))
+    lis.run_until(max(ticks) + 0.5)                                   # and runs again after resuming
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_shuts_down_cleanly_on_signals(ros, sig):
+    proc = NodeProcess("flagbot_sim.ros.sim_node", "--ros-args", "-p", "scene:=design2", "-p", "initial_omega:=5.0")
+    lis = Listener(ros)
+    spin_until(ros, lambda: len(lis.msgs["clock"]) > 3, DISCOVERY_TIMEOUT, "/clock")
+    code, out = proc.stop(sig)
+    assert code == 0, out
+    assert "Traceback" not in out and "error" not in out.lower()
