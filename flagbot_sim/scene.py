@@ -110,7 +110,9 @@ class NumericsSection:
                           gt=0.0, lt=1.0)
     max_iterations: int = _f(25, "", "Newton iterations per attempt", ge=1, le=500)
     min_dt: float = _f(1.0e-6, "s", "smallest time step before a step is declared failed", gt=0.0)
-    reuse_jacobian: bool = _f(False, "", "reuse a factorised Jacobian while Newton converges fast")
+    linear_solver: str = _f("auto", "", "Newton's linear solver: 'arrow' (banded flagella + Schur complement of "
+                                        "the core), 'splu' (SuperLU), 'auto' (arrow when the network allows)",
+                            choices=("auto", "arrow", "splu"))
 
 
 @dataclass(frozen=True)

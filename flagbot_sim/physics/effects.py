@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .frames import normalize, parallel_transport, rowdot, signed_angle, unwrap_to
 from .network import RodNetwork
 
@@ -124,6 +125,7 @@ class RFTDrag(Effect):
         self.b = np.concatenate(b_list)
         self.l = np.concatenate(l_list)
         self.dof_k = net.node_dofs(self.k)
+        self._no_jacobian = np.empty((1, 3, 3))
         self.dof_a = net.node_dofs(self.a)
         self.dof_b = net.node_dofs(self.b)
 
@@ -140,10 +142,24 @@ class RFTDrag(Effect):
         v, t, _, vt = self._kinematics(ctx)
         return -self.l[:, None] * (self.eta_p * v + ((self.eta_t - self.eta_p) * vt)[:, None] * t)
 
+    #: compiled kernel when numba is available (set False on an instance for the numpy reference)
+    use_kernels = kernels.AVAILABLE
+
     def force(self, ctx):
+        if self.use_kernels:
+            F = np.empty((len(self.k), 3))
+            kernels.rft(ctx.x, ctx.x_old, ctx.dt, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, F,
+                        self._no_jacobian, self._no_jacobian, False)
+            return self.dof_k, F
         return self.dof_k, self.node_forces(ctx)
 
     def force_and_jacobian(self, ctx):
+        if self.use_kernels:
+            n = len(self.k)
+            F, J_k, J_b = np.empty((n, 3)), np.empty((n, 3, 3)), np.empty((n, 3, 3))
+            kernels.rft(ctx.x, ctx.x_old, ctx.dt, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, F, J_k,
+                        J_b, True)
+            return self.dof_k, F, [J_k, -J_b, J_b]
         v, t, chord, vt = self._kinematics(ctx)
         l, de = self.l[:, None, None], self.eta_t - self.eta_p
         F = -self.l[:, None] * (self.eta_p * v + (de * vt)[:, None] * t)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .frames import EdgeFrames, cross, material_frames, normalize, parallel_transport, rowdot, signed_angle, unwrap_to
 from .network import RodNetwork
 
@@ -126,7 +127,20 @@ class ElasticModel:
     def positions(self, q: np.ndarray) -> np.ndarray:
         return q[: 3 * self.n_nodes].reshape(self.n_nodes, 3)
 
+    #: compiled kernels when numba is available (set False on an instance to use the numpy reference)
+    use_kernels = kernels.AVAILABLE
+
     def trial_frames(self, q: np.ndarray, committed: EdgeFrames) -> TrialFrames:
+        if self.use_kernels:
+            Ne, H = self.net.n_edges, self.net.n_hinges
+            t, length = np.empty((Ne, 3)), np.empty(Ne)
+            d1, d2, rt = np.empty((Ne, 3)), np.empty((Ne, 3)), np.empty(H)
+            kernels.frames(self.positions(q), self.net.edges, committed.d1, committed.t, self.net.hinge_edges,
+                           self.sign, committed.ref_twist, t, length, d1, d2, rt)
+            return TrialFrames(t=t, length=length, d1=d1, d2=d2, ref_twist=rt, t_committed=committed.t)
+        return self.trial_frames_numpy(q, committed)
+
+    def trial_frames_numpy(self, q: np.ndarray, committed: EdgeFrames) -> TrialFrames:
         x = self.positions(q)
         E = self.net.edges
         t, length = normalize(x[E[:, 1]] - x[E[:, 0]])
@@ -176,6 +190,33 @@ class ElasticModel:
         Eb = 0.5 * np.sum(self.k_bend * np.sum(dk ** 2, axis=1))
         Et = 0.5 * np.sum(self.k_twist * (tau - self.tau_bar) ** 2)
         return float(Es + Eb + Et)
+
+    # ------------------------------------------------------------------ into the global system
+    def set_slots(self, stretch_slots: np.ndarray, hinge_slots: np.ndarray) -> None:
+        """Positions in the CSC data array of every stretch (6x6) and hinge (11x11) Jacobian entry."""
+        self.stretch_slots = np.ascontiguousarray(stretch_slots.reshape(-1, 6, 6))
+        self.hinge_slots = np.ascontiguousarray(hinge_slots.reshape(-1, 11, 11))
+
+    def accumulate(self, q: np.ndarray, fr: TrialFrames, r: np.ndarray, data: np.ndarray | None) -> None:
+        """Add the elastic gradient to r and, if data is given, the Hessian to the CSC data array."""
+        want = data is not None
+        if self.use_kernels:
+            d = data if want else np.empty(0)
+            net = self.net
+            kernels.stretch(fr.t, fr.length, net.edge_rest_length, net.EA, self.stretch_dofs, self.stretch_slots,
+                            r, d, want)
+            kernels.bend_twist(self.positions(q), q[3 * self.n_nodes:], fr.t, fr.t_committed, fr.length, fr.d1,
+                               fr.d2, fr.ref_twist, net.hinge_nodes, net.hinge_edges, self.sign, self.beta,
+                               self.kappa_bar, self.tau_bar, self.k_bend, self.k_twist, self.hinge_dofs,
+                               self.hinge_slots, r, d, want)
+            return
+        gs, hs = self.stretch_terms(fr, want)
+        gh, hh = self.hinge_terms(q, fr, want)
+        r += np.bincount(np.concatenate([self.stretch_dofs.ravel(), self.hinge_dofs.ravel()]),
+                         weights=np.concatenate([gs.ravel(), gh.ravel()]), minlength=len(r))
+        if want:
+            data += np.bincount(np.concatenate([self.stretch_slots.ravel(), self.hinge_slots.ravel()]),
+                                weights=np.concatenate([hs.ravel(), hh.ravel()]), minlength=len(data))
 
     # ------------------------------------------------------------------ gradient / Hessian
     def stretch_terms(self, fr: TrialFrames, want_hessian: bool):

@@ -66,6 +66,7 @@ class RobotModel:
             self._effect_block_range.append((len(blocks), len(blocks) + len(b)))
             blocks.extend(b)
         self.pattern = SparsePattern(self.ndof, blocks)
+        self.elastic.set_slots(self.pattern.slots[0], self.pattern.slots[1])
         self.drivers = [e for e in self.effects if type(e).begin_step is not Effect.begin_step]
         # residual scaling: torques on twist DOFs are divided by a length to compare with forces
         fl = scene.flagellum
@@ -115,27 +116,22 @@ class RobotModel:
 
     def residual(self, q: np.ndarray, state: State, dt: float, ctx: StepContext | None = None) -> np.ndarray:
         ctx = ctx or self.context(q, state, dt)
-        el = self.elastic
-        gs, _ = el.stretch_terms(ctx.frames, False)
-        gh, _ = el.hinge_terms(q, ctx.frames, False)
-        idx = [el.stretch_dofs.ravel(), el.hinge_dofs.ravel()]
-        val = [gs.ravel(), gh.ravel()]
+        idx, val = [], []
         for eff in self.effects:
             f = eff.force(ctx)
             if f is not None:
                 idx.append(np.ravel(f[0]))
                 val.append(-np.ravel(f[1]))
-        return np.bincount(np.concatenate(idx), weights=np.concatenate(val), minlength=self.ndof)
+        r = (np.bincount(np.concatenate(idx), weights=np.concatenate(val), minlength=self.ndof) if idx
+             else np.zeros(self.ndof))
+        self.elastic.accumulate(q, ctx.frames, r, None)
+        return r
 
     def residual_and_jacobian(self, q: np.ndarray, state: State, dt: float):
         """Residual vector and CSC data of the Jacobian (on ``self.pattern``) at the trial q."""
         ctx = self.context(q, state, dt)
-        el = self.elastic
-        gs, hs = el.stretch_terms(ctx.frames, True)
-        gh, hh = el.hinge_terms(q, ctx.frames, True)
-        idx = [el.stretch_dofs.ravel(), el.hinge_dofs.ravel()]
-        val = [gs.ravel(), gh.ravel()]
-        jac_values: list = [hs, hh]
+        idx, val = [], []
+        jac_values: list = [None, None]          # elastic blocks are added by the elastic model below
         for eff, (b0, b1) in zip(self.effects, self._effect_block_range):
             fi, fv, jv = eff.force_and_jacobian(ctx)
             if fi is not None:
@@ -144,5 +140,8 @@ class RobotModel:
             for j in jv:
                 jac_values.append(-np.asarray(j))
             jac_values.extend([None] * (b1 - b0 - len(jv)))
-        r = np.bincount(np.concatenate(idx), weights=np.concatenate(val), minlength=self.ndof)
-        return r, self.pattern.assemble(jac_values), ctx
+        r = (np.bincount(np.concatenate(idx), weights=np.concatenate(val), minlength=self.ndof) if idx
+             else np.zeros(self.ndof))
+        data = self.pattern.assemble(jac_values)
+        self.elastic.accumulate(q, ctx.frames, r, data)
+        return r, data, ctx

@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse.linalg as spla
 
+from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State
 
 
@@ -49,7 +49,7 @@ class Stepper:
         self._scale = model.scale
         self._drivers = model.drivers
         self._prescribers = [e for e in model.effects if hasattr(e, "prescribed_dofs")]
-        self.permc_spec = "COLAMD"
+        self.solver = make_solver(model, num.linear_solver)
 
     # ------------------------------------------------------------------
     def step(self, state: State, dt: float) -> tuple[State, StepStats]:
@@ -98,7 +98,6 @@ class Stepper:
         fixed = self.fixed
         r, data, ctx = model.residual_and_jacobian(q, state, h)
         r[fixed] = 0.0
-        rn_prev = None
         merit_start = None
         watchdog = 3
         for it in range(self.max_iterations + 1):
@@ -111,32 +110,27 @@ class Stepper:
                 return self._accept(state, q, ctx, h, stats, it)
             if it == self.max_iterations:
                 return None
-            if data is None:
-                _, data, _ = model.residual_and_jacobian(q, state, h)
+            if data is None:                 # the trial point was not converged: now its Jacobian is needed
+                r, data, ctx = model.residual_and_jacobian(q, state, h)
+                r[fixed] = 0.0
             data[self._fix_slots] = 0.0
             data[self._fix_diag] = 1.0
             try:
-                lu = spla.splu(self.pattern.matrix(data), permc_spec=self.permc_spec)
-                dq = -lu.solve(r)
-            except RuntimeError:           # exactly singular factor
+                self.solver.factor(data)
+                dq = -self.solver.solve(r)
+            except SingularJacobian:
                 return None
             if not np.all(np.isfinite(dq)):
                 return None
-            # Newton converges quadratically, r_next ~ r^2 / C with C from the last two residuals: when that
-            # predicts convergence, evaluate the residual alone and skip the Jacobian nobody will use.
-            expect_done = rn_prev is not None and rn * rn / max(rn_prev * rn_prev / rn, 1e-300) < 0.1 * self.tol
-            rn_prev = rn
             merit0 = float(np.linalg.norm(rs))
             if merit_start is None:
                 merit_start = merit0
             alpha = 1.0
             while True:
+                # the residual alone decides: most steps converge here and never need this point's Jacobian
                 q_try = q + alpha * dq
-                if alpha == 1.0 and not expect_done:
-                    r_try, data_try, ctx_try = model.residual_and_jacobian(q_try, state, h)
-                else:
-                    ctx_try = model.context(q_try, state, h)
-                    r_try, data_try = model.residual(q_try, state, h, ctx_try), None
+                ctx_try = model.context(q_try, state, h)
+                r_try = model.residual(q_try, state, h, ctx_try)
                 r_try[fixed] = 0.0
                 m = float(np.linalg.norm(self._scaled(r_try)))
                 if np.isfinite(m) and m < (1.0 - 1e-4 * alpha) * merit0:
@@ -151,7 +145,7 @@ class Stepper:
                 stats.line_search_cuts += 1
                 if alpha < 1.0 / 64.0:
                     return None
-            q, r, data, ctx = q_try, r_try, data_try, ctx_try
+            q, r, ctx, data = q_try, r_try, ctx_try, None
         return None
 
     def _accept(self, state: State, q: np.ndarray, ctx, h: float, stats: StepStats, iterations: int) -> State:
