@@ -18,6 +18,8 @@ EXECUTABLES = {
     "sim_node": "flagbot_sim.ros.sim_node:main",
     "beam_node": "flagbot_sim.ros.beam_node:main",
     "cmd_profile": "flagbot_sim.ros.cmd_profile:main",
+    "record": "flagbot_sim.ros.recorder:main",
+    "replay": "flagbot_sim.ros.replay:main",
 }
 
 setup(

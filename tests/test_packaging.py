@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-EXECUTABLES = ["flagbot", "sim_node", "beam_node", "cmd_profile"]
+EXECUTABLES = ["flagbot", "sim_node", "beam_node", "cmd_profile", "record", "replay"]
 
 
 @pytest.fixture(scope="module")

@@ -100,7 +100,7 @@ def test_page_matches_the_live_node(ros, node_name):
             d = descs[pname]
             assert TYPE_NAMES[d.type] == r["type"], pname
             default = r["default"]
-            expected = {"true": True, "false": False}.get(default, default)
+            expected = {"true": True, "false": False, '""': ""}.get(default, default)
             if r["type"] in ("double", "int"):
                 expected = float(default)
             elif r["type"] == "string[]":

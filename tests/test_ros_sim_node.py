@@ -124,7 +124,9 @@ def test_commanded_robot_publishes_everything_and_matches_the_library(ros, sim_n
         assert lis.msgs[key], f"nothing received on {key}"
     assert not lis.non_finite
     js = [(t_of(m.header.stamp), m.velocity) for m in lis.msgs["joints"]]
-    assert all(len(m.position) == len(m.velocity) == len(m.effort) == 2 for m in lis.msgs["joints"])
+    assert all(len(m.position) == len(m.velocity) == len(m.effort) == 3 for m in lis.msgs["joints"])
+    assert lis.msgs["joints"][-1].name == ["head_spin", "flagella_spin", "motor"]
+    assert lis.msgs["joints"][-1].velocity[2] == OMEGA        # the command in force
     w_h = window_mean([(t, v[0]) for t, v in js], 2.0, 3.0)
     w_t = window_mean([(t, v[1]) for t, v in js], 2.0, 3.0)
     assert w_h + w_t == pytest.approx(OMEGA, rel=0.01) and w_h > 0 and w_t > 0
@@ -216,7 +218,7 @@ def test_reset_returns_the_robot_to_the_start_and_pause_stops_time(ros, sim_node
     p = lis.msgs["pose"][-1].pose
     assert abs(p.position.x) < 1e-12 and abs(p.position.y) < 1e-12 and abs(p.orientation.w) > 1 - 1e-12
     j = lis.msgs["joints"][-1]
-    assert j.position[0] == 0.0 and j.position[1] == 0.0
+    assert list(j.position) == [0.0, 0.0, 0.0]
     assert t_of(lis.msgs["pose"][-1].header.stamp) >= max(ticks)     # the clock never runs backwards
     call(ros, lis.pause, SetBool.Request(data=False))
     lis.run_until(max(ticks) + 0.5)                                   # and runs again after resuming

@@ -8,7 +8,7 @@ from typing import Callable
 import numpy as np
 
 from ..scene import Scene
-from .model import RobotModel, State
+from .model import RobotModel
 from .observe import Observer, quaternion_from_matrix
 from .stepper import Stepper, StepStats
 
@@ -83,6 +83,11 @@ class Simulation:
     @property
     def time(self) -> float:
         return self.state.t
+
+    @property
+    def motor_angle(self) -> float:
+        """Integrated drive command (rad): the motor's natural-twist angle, or the clamp's rotation angle."""
+        return float(self.state.extras.get("motor_angle", self.state.extras.get("clamp_angle", 0.0)))
 
     # ---------------------------------------------------------------- observations
     def positions(self) -> np.ndarray:

@@ -22,11 +22,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from ..physics.observe import quaternion_from_matrix
 
-#: simulation frame -> ROS fixed frame (rotation by pi about z)
-WORLD_FROM_SIM = np.diag([-1.0, -1.0, 1.0])
-#: head body frame (x forward) from the head edge's material frame (t, m1, m2): (-t, -m1, m2)
-BODY_FROM_MATERIAL = np.diag([-1.0, -1.0, 1.0])
-JOINT_NAMES = ["head_spin", "flagella_spin"]
+JOINT_NAMES = ["head_spin", "flagella_spin", "motor"]
 
 
 def stamp(t: float) -> Time:
@@ -35,16 +31,6 @@ def stamp(t: float) -> Time:
     if nsec >= 1_000_000_000:
         sec, nsec = sec + 1, nsec - 1_000_000_000
     return Time(sec=int(sec), nanosec=nsec)
-
-
-def to_world(points: np.ndarray, origin=np.zeros(3)) -> np.ndarray:
-    """Simulation-frame points in the fixed frame, whose origin is ``origin`` (the head centre at rest)."""
-    return (np.asarray(points) - origin) @ WORLD_FROM_SIM.T
-
-
-def head_rotation_world(material: np.ndarray) -> np.ndarray:
-    """Rotation of the head body frame in the fixed frame, from the head edge's material frame columns."""
-    return WORLD_FROM_SIM @ material @ BODY_FROM_MATERIAL
 
 
 def _point(p) -> Point:
@@ -87,15 +73,17 @@ def odometry_msg(t: float, frame: str, child: str, position_w, R_w, v_w, omega_w
     return m
 
 
-def joint_state_msg(t: float, phi_h: float, phi_t: float, omega_h: float, omega_t: float,
-                    torque: float) -> JointState:
-    """Head and flagella spin: accumulated angle (rad), rate (rad/s), motor torque (N m). Every array filled."""
+def joint_state_msg(t: float, phi_h: float, phi_t: float, omega_h: float, omega_t: float, motor_angle: float,
+                    omega_T: float, torque: float) -> JointState:
+    """Head spin, flagella spin and the motor (rotor relative to stator): angle (rad), rate (rad/s), motor
+    torque (N m). The motor joint's rate is the command in force, its angle the integrated command: a recording
+    therefore pins every command change to a simulation step. Every array is filled."""
     m = JointState()
     m.header.stamp = stamp(t)
     m.name = list(JOINT_NAMES)
-    m.position = [float(phi_h), float(phi_t)]
-    m.velocity = [float(omega_h), float(omega_t)]
-    m.effort = [float(torque), float(torque)]
+    m.position = [float(phi_h), float(phi_t), float(motor_angle)]
+    m.velocity = [float(omega_h), float(omega_t), float(omega_T)]
+    m.effort = [float(torque)] * 3
     return m
 
 

@@ -7,7 +7,6 @@ steady omega_h, omega_t and speed next to the beam-theory prediction. DDS stays 
 """
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import signal
@@ -92,12 +91,12 @@ def cmd_demo(args) -> int:
         "cmd_profile": py + ["flagbot_sim.ros.cmd_profile", "steps", spec, "--rpm", "--sim-time", "--t0", "0",
                              "--quiet"],
     }
-    if args.record:
-        cmds["record"] = py + ["flagbot_sim.ros.recorder", "-o", args.record]
+    if args.record:   # sim_node's own recorder: the resolved scene and every parameter go into the file
+        cmds["sim_node"] += ["-p", f"record:={os.path.abspath(args.record)}"]
     logs = {k: tempfile.TemporaryFile(mode="w+") for k in cmds}
     procs = {k: subprocess.Popen(c, env=env, stdout=logs[k], stderr=subprocess.STDOUT) for k, c in cmds.items()}
     try:
-        samples, beam = _monitor(profile.duration, procs, args.json)
+        samples, beam = _monitor(profile.duration, procs, args.json, recording=bool(args.record))
     finally:
         for p in procs.values():
             if p.poll() is None:
@@ -128,10 +127,10 @@ def cmd_demo(args) -> int:
     return 1 if problems or any(math.isnan(r["omega_h"]) for r in rows) else 0
 
 
-def _monitor(duration: float, procs: dict, quiet: bool):
+def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False):
     import rclpy
     from nav_msgs.msg import Odometry
-    from rclpy.node import Node
+    from rclpy.node import Node, NodeNameNonExistentError
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
@@ -178,9 +177,21 @@ def _monitor(duration: float, procs: dict, quiet: bool):
     wall0 = time.monotonic()
     try:
         # everyone connected before simulated time starts: the command and beam streams, then unpause
+        def recorder_ready():
+            # sim_node subscribes to beam/ topics only to record them: once it has, the recorder is listening
+            if not recording:
+                return True
+            if "sim_node" not in node.get_node_names():
+                return False
+            try:
+                subs = {t for t, _ in node.get_subscriber_names_and_types_by_node("sim_node", "/")}
+            except NodeNameNonExistentError:          # in the graph a moment later
+                return False
+            return {"/" + names.BEAM_SPEED, "/" + names.CMD_OMEGA} <= subs
+
         def ready():
             return (node.count_publishers(names.CMD_OMEGA) >= 1 and node.count_publishers(names.BEAM_SPEED) >= 1
-                    and node.count_publishers(names.CLOCK) >= 1 and pause.service_is_ready())
+                    and node.count_publishers(names.CLOCK) >= 1 and pause.service_is_ready() and recorder_ready())
         while not ready():
             rclpy.spin_once(node, timeout_sec=0.1)
             if time.monotonic() - wall0 > 60:

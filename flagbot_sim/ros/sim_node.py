@@ -11,7 +11,6 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
@@ -24,7 +23,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from .. import __version__
+from .. import __version__, world
+from ..bag import BagError
 from ..physics import Simulation, StepFailed
 from ..scene import SceneError, load_scene
 from . import convert, names
@@ -47,6 +47,8 @@ PARAMS = [
               range=(1e-3, 1e4)),
     ParamSpec("start_paused", False, "start paused (call the pause service with false to run); lets other "
               "processes connect before simulated time starts"),
+    ParamSpec("record", "", "MCAP file to record this run to (every flagbot topic, cmd_omega and /clock, with the "
+              "scene and all parameters); setting it starts a new recording, '' stops"),
     ParamSpec("frame_id", "world", "fixed frame of poses, odometry and markers"),
     ParamSpec("child_frame_id", "head", "head body frame (odometry child frame)"),
 ]
@@ -103,6 +105,9 @@ class SimNode(Node):
         self._last_diag = -math.inf
         self._rtf_window: list[tuple[float, float]] = []
         self._behind = False
+        self.recorder = None
+        if p["record"]:
+            self._start_recording(p["record"])
         self.timer = self.create_timer(1.0 / self.publish_rate, self._on_timer)
         self.get_logger().info(
             f"flagbot_sim {__version__}: scene {self.sim.scene.scene.name}, n = {self.sim.scene.robot.n_flagella}, "
@@ -116,6 +121,31 @@ class SimNode(Node):
     def _anchor(self) -> None:
         self._wall0 = time.monotonic()
         self._sim0 = self.sim.time
+
+    # ------------------------------------------------------------------ recording
+    def _start_recording(self, path: str) -> None:
+        from ..bag import RunMetadata
+        from .recorder import Recorder
+        params = {s.name: self.get_parameter(s.name).value for s in PARAMS}
+        params["scene_overrides"] = list(params["scene_overrides"])
+        # the resolved scene (file + overrides + n_flagella), so the recording alone reproduces the run
+        meta = RunMetadata(scene_toml=self.sim.scene.to_toml(), parameters=params)
+        self.recorder = Recorder(self, path, None, meta)
+        self.get_logger().info(f"recording to {path}")
+
+    def _stop_recording(self) -> str:
+        if self.recorder is None:
+            return ""
+        s = self.recorder.close()
+        self.recorder = None
+        return (f"recording closed: {s.path}, {s.messages} messages on {len(s.topics)} topics, "
+                f"{s.duration:.1f} s, {s.size_bytes / 1024:.0f} KiB" + (f", ERROR {s.error}" if s.error else ""))
+
+    def close(self) -> None:
+        # called after the context is gone (SIGINT/SIGTERM): plain print, rosout can no longer be published to
+        msg = self._stop_recording()
+        if msg:
+            print(msg, flush=True)
 
     # ------------------------------------------------------------------ callbacks
     def _on_cmd(self, msg: Float64) -> None:
@@ -182,6 +212,15 @@ class SimNode(Node):
         for name in ("marker_rate", "max_omega", "frame_id", "child_frame_id"):
             if name in new:
                 setattr(self, name, new[name])
+        if "record" in new:
+            msg = self._stop_recording()
+            if msg:
+                self.get_logger().info(msg)
+            if new["record"]:
+                try:
+                    self._start_recording(new["record"])
+                except (OSError, ValueError, BagError) as exc:
+                    return SetParametersResult(successful=False, reason=f"cannot record to {new['record']!r}: {exc}")
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ stepping
@@ -233,10 +272,10 @@ class SimNode(Node):
         sim, ob = self.sim, self.sim.observer
         t = self.sim_time
         origin = ob.position(sim.initial)
-        pos_w = convert.to_world(ob.position(sim.state), origin)
-        R_w = convert.head_rotation_world(ob.head_orientation(sim.state))
-        v_w = convert.to_world(sim.head_velocity())
-        w_w = convert.WORLD_FROM_SIM @ sim.head_angular_velocity()
+        pos_w = world.to_world(ob.position(sim.state), origin)
+        R_w = world.head_rotation_world(ob.head_orientation(sim.state))
+        v_w = world.to_world(sim.head_velocity())
+        w_w = world.WORLD_FROM_SIM @ sim.head_angular_velocity()
         torque = sim.motor_torque()
         values = np.concatenate([pos_w, R_w.ravel(), v_w, w_w, [ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t,
                                                                ob.speed, torque]])
@@ -247,7 +286,8 @@ class SimNode(Node):
         self.pub_clock.publish(convert.clock_msg(t))
         self.pub_pose.publish(convert.pose_msg(t, self.frame_id, pos_w, R_w))
         self.pub_odom.publish(convert.odometry_msg(t, self.frame_id, self.child_frame_id, pos_w, R_w, v_w, w_w))
-        self.pub_joints.publish(convert.joint_state_msg(t, ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t, torque))
+        self.pub_joints.publish(convert.joint_state_msg(t, ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t,
+                                                        sim.motor_angle, sim.omega_T, torque))
         self.pub_omega_h.publish(convert.float_msg(ob.rate_h))
         self.pub_omega_t.publish(convert.float_msg(ob.rate_t))
         self.pub_speed.publish(convert.float_msg(ob.speed))
@@ -260,10 +300,10 @@ class SimNode(Node):
         sim = self.sim
         o = sim.observer.position(sim.initial)
         rigid = sim.rigid_polylines()
-        head = convert.to_world(rigid["head"][1], o) if "head" in rigid else None
+        head = world.to_world(rigid["head"][1], o) if "head" in rigid else None
         return convert.markers_msg(
-            t, self.frame_id, [convert.to_world(c, o) for c in sim.flagella_centrelines()], head,
-            sim.scene.head.radius, [convert.to_world(a, o) for a in rigid["plate"]], sim.scene.flagellum.radius)
+            t, self.frame_id, [world.to_world(c, o) for c in sim.flagella_centrelines()], head,
+            sim.scene.head.radius, [world.to_world(a, o) for a in rigid["plate"]], sim.scene.flagellum.radius)
 
     def _publish_diagnostics(self) -> None:
         sim, st = self.sim, self.sim.last_stats

@@ -1,0 +1,359 @@
+"""Recording commands for ``python -m flagbot_sim``: ``record``, ``replay``, ``bag-summary``, ``bag-recover``.
+
+Only ``record`` and ``replay`` import rclpy (when they run); the analysis works from the MCAP file alone.
+
+``bag-summary`` finds the omega_T steps in the ``cmd_omega`` stream (a new step whenever the commanded value
+changes) and reports, for each, the steady omega_h, omega_t and v: the mean of the ``omega_h``, ``omega_t`` and
+``speed`` topics (std_msgs/Float64) over the last ``--tail`` fraction of the step. The time axis is the simulation
+time from the recorded /clock when there is one (log/receive time otherwise), so steps are measured in simulated
+seconds even when the simulator ran faster or slower than real time.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .bag import (BagError, BagReader, find_topic, namespace_of, recover, sim_time_map)
+
+RPM = 2.0 * math.pi / 60.0
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# arguments (shared with the console scripts in flagbot_sim.ros.recorder / .replay)
+
+
+def add_record_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("topics", nargs="*", help="topics to record (relative names follow --namespace); default: every "
+                                             "flagbot topic (flagbot_sim.ros.names.DEFAULT_RECORD_TOPICS)")
+    p.add_argument("-o", "--output", help="output .mcap file (default: flagbot_YYYYmmdd_HHMMSS.mcap)")
+    p.add_argument("-a", "--all", action="store_true", help="record every topic currently or later visible")
+    p.add_argument("--exclude", action="append", metavar="REGEX", help="do not record topics matching REGEX")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("--scene", help="scene (built-in name or .toml) to store in the file's metadata")
+    p.add_argument("--params-from", metavar="NODE", help="store all parameters of this node (e.g. /sim_node), and "
+                                                         "the text of the scene its `scene` parameter names")
+    p.add_argument("--metadata", action="append", metavar="KEY=VALUE", help="extra metadata to store")
+    p.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd", help="chunk compression")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.add_argument("--namespace", default="", help="namespace of the recorder node (relative topics resolve in it)")
+    p.add_argument("--node-name", default="flagbot_recorder")
+
+
+def add_replay_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("bag", help="MCAP file (or a rosbag2 directory holding one)")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (2 = twice as fast)")
+    p.add_argument("--loop", action="store_true", help="start again at the end until interrupted")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="replay only these topics (names or regexes)")
+    p.add_argument("--exclude", nargs="+", metavar="TOPIC", help="do not replay these topics (names or regexes)")
+    p.add_argument("--start-offset", type=float, default=0.0, metavar="S",
+                   help="start this many seconds after the first message")
+    p.add_argument("--no-clock", action="store_true",
+                   help="do not publish a /clock derived from log time when the recording has no /clock")
+    p.add_argument("--clock-rate", type=float, default=100.0, metavar="HZ", help="rate of the derived /clock")
+    p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
+                   help="before starting, wait up to S seconds until every replayed topic has a subscriber")
+    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="sleep S seconds before starting")
+    p.add_argument("--namespace", default="")
+    p.add_argument("--node-name", default="flagbot_replay")
+    p.add_argument("--resimulate", action="store_true",
+                   help="no ROS: feed the recorded commands to a fresh simulator with the recorded scene and report "
+                        "the largest difference in pose, omega_h and omega_t against the recording")
+    p.add_argument("--json", action="store_true", help="with --resimulate: print the report as JSON")
+
+
+def _fail(exc: Exception) -> int:
+    print(f"error: {exc}", file=sys.stderr)
+    return 2
+
+
+def cmd_record(args) -> int:
+    try:
+        from .ros.recorder import run
+        return run(args, ros_args=["record"])
+    except BagError as exc:
+        return _fail(exc)
+
+
+def cmd_replay(args) -> int:
+    if args.resimulate:
+        return cmd_resimulate(args)
+    try:
+        from .ros.replay import run
+        return run(args, ros_args=["replay"])
+    except BagError as exc:
+        return _fail(exc)
+
+
+def cmd_resimulate(args) -> int:
+    from .progress import ProgressBar
+    from .resim import ResimulationError, format_report, resimulate
+    try:
+        bar = ProgressBar(100.0, label="re-simulating", unit="%", enabled=not args.json)
+        res = resimulate(args.bag, args.namespace or None, progress=lambda f: bar.update(100.0 * f))
+        bar.close()
+    except (BagError, ResimulationError) as exc:
+        return _fail(exc)
+    if args.json:
+        print(json.dumps({"bag": str(args.bag), **res.to_dict()}))
+    else:
+        print(format_report(res, args.bag))
+    return 0
+
+
+def cmd_recover(args) -> int:
+    out = args.output or str(Path(args.bag).with_suffix("")) + ".recovered.mcap"
+    try:
+        rep = recover(args.bag, out, overwrite=args.overwrite)
+    except BagError as exc:
+        return _fail(exc)
+    print(rep.describe_loss() or f"{args.bag}: intact, nothing lost")
+    print(f"wrote {out}: {rep.messages} messages, valid and indexed")
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# analysis
+
+
+@dataclass
+class Step:
+    index: int
+    t_start: float      # s (time axis of the summary)
+    t_end: float
+    omega_T: float      # rad/s, commanded
+    omega_h: float      # rad/s, steady value (mean over the tail window); NaN without samples
+    omega_t: float
+    v: float            # m/s
+    samples: int        # omega_h samples in the tail window
+    source: str = "cmd_omega"   # or 'initial': the speed before the first command (parameter or scene)
+
+
+def _initial_omega(meta) -> float | None:
+    """Motor speed before the first command: the sim_node's ``initial_omega`` parameter when recorded, else the
+    scene's motor speed (a scene run from the CLI), else unknown."""
+    if meta is None:
+        return None
+    w = meta.parameters.get("initial_omega")
+    if isinstance(w, (int, float)) and not isinstance(w, bool):
+        return float(w)
+    if not meta.scene_toml:
+        return None
+    try:
+        import tomllib
+
+        from .scene import scene_from_dict
+        return float(scene_from_dict(tomllib.loads(meta.scene_toml)).omega_T)
+    except Exception:
+        return None
+
+
+def _motor_joint_steps(reader, topics, ns) -> list:
+    """Exact command steps from the sim_node's ``motor`` joint (command in force and its integral, stamped in
+    simulation time); [] when the recording has no such joint."""
+    import numpy as np
+
+    from .resim import command_schedule
+    topic = find_topic(topics, "joint_states", ns)
+    if topic is None:
+        return []
+    rows = [m for _, _, m in reader.decoded(topic)]
+    if not rows or "motor" not in rows[0].name:
+        return []
+    k = rows[0].name.index("motor")
+    rows.sort(key=lambda m: (m.header.stamp.sec, m.header.stamp.nanosec))
+    t = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in rows])
+    angle = np.array([m.position[k] for m in rows])
+    rate = np.array([m.velocity[k] for m in rows])
+    keep = np.r_[True, np.diff(t) > 0]
+    schedule, _ = command_schedule(t[keep], angle[keep], rate[keep], dt=None)
+    return [(ts, w, "motor joint") for ts, w in schedule]
+
+
+def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0.25,
+              time_axis: str = "auto") -> dict:
+    """Everything ``bag-summary`` prints, as a JSON-able dict (``series`` holds the plotted arrays)."""
+    import numpy as np
+    if not 0 < tail <= 1:
+        raise BagError(f"--tail must be in (0, 1], got {tail}")
+    with BagReader(path) as r:
+        rep = r.report
+        meta = r.run_metadata()
+        topics = r.topics
+        cmd_topic = find_topic(topics, "cmd_omega", namespace)
+        ns = namespace
+        if ns is None:
+            for name in ("cmd_omega", "omega_h", "speed", "omega_t"):
+                t = find_topic(topics, name)
+                if t is not None:
+                    ns = namespace_of(t, name)
+                    break
+        smap = sim_time_map(r)
+        use_sim = (time_axis == "sim") or (time_axis == "auto" and bool(smap))
+        if use_sim and not smap:
+            raise BagError("--time sim needs a recorded /clock")
+        t0 = rep.start_ns or 0
+
+        def axis(log_ns):
+            log_ns = np.asarray(log_ns, dtype=float)
+            return smap(log_ns) if use_sim else (log_ns - t0) * 1e-9
+
+        series = {}
+        for name in ("omega_h", "omega_t", "speed"):
+            topic = find_topic(topics, name, ns)
+            if topic is None:
+                series[name] = (np.zeros(0), np.zeros(0))
+                continue
+            rows = r.decoded(topic)
+            series[name] = (axis([lt for lt, _, _ in rows]), np.array([float(m.data) for _, _, m in rows]))
+        cmds = []
+        if cmd_topic is not None:
+            rows = r.decoded(cmd_topic)
+            cmds = list(zip(axis([lt for lt, _, _ in rows]).tolist(), [float(m.data) for _, _, m in rows]))
+        starts = [s[0][0] for s in series.values() if len(s[0])]
+        ends = [s[0][-1] for s in series.values() if len(s[0])]
+        t_first = min(starts) if starts else (cmds[0][0] if cmds else 0.0)
+        t_last = max(ends) if ends else (cmds[-1][0] if cmds else 0.0)
+        # steps: [time, omega_T, source]; the initial speed applies before the first command
+        bounds = _motor_joint_steps(r, topics, ns) if use_sim else []
+        if not bounds:
+            w0 = _initial_omega(meta)
+            if w0 is not None and (not cmds or cmds[0][0] > t_first):
+                bounds.append((t_first, w0, "initial"))
+            for t, w in cmds:
+                if not bounds or w != bounds[-1][1]:
+                    bounds.append((t, w, "cmd_omega"))
+        steps = []
+        for i, (ts, w, src) in enumerate(bounds):
+            te = bounds[i + 1][0] if i + 1 < len(bounds) else max(t_last, ts)
+            lo = te - tail * (te - ts)
+            vals, n = {}, 0
+            for name, (tt, yy) in series.items():
+                sel = (tt >= lo) & (tt <= te) if i + 1 == len(bounds) else (tt >= lo) & (tt < te)
+                vals[name] = float(np.mean(yy[sel])) if sel.any() else float("nan")
+                if name == "omega_h":
+                    n = int(sel.sum())
+            steps.append(Step(i, ts, te, w, vals["omega_h"], vals["omega_t"], vals["speed"], n, src))
+        out = {
+            "path": str(r.path), "size_bytes": rep.size, "messages": rep.messages, "duration": rep.duration,
+            "closed": rep.closed, "ok": rep.ok, "loss": rep.describe_loss(), "time_axis": "sim" if use_sim else "log",
+            "namespace": ns or "",
+            "topics": [{"topic": t.topic, "type": t.type_name, "count": t.count,
+                        "rate_hz": (t.count - 1) / ((t.last_log_ns - t.first_log_ns) * 1e-9)
+                        if t.count > 1 and t.last_log_ns > t.first_log_ns else None}
+                       for t in sorted(topics.values(), key=lambda t: t.topic)],
+            "metadata": ({"package_version": meta.package_version, "source_revision": meta.source_revision,
+                          "created_utc": meta.created_utc, "parameters": len(meta.parameters),
+                          "scene": bool(meta.scene_toml)} if meta else None),
+            "steps": [asdict(s) for s in steps],
+            "tail": tail,
+            "series": {k: {"t": v[0], "y": v[1]} for k, v in series.items()},
+            "cmd_omega": cmds,
+        }
+        return out
+
+
+def format_summary(s: dict) -> str:
+    lines = [f"{s['path']}: {s['messages']} messages, {len(s['topics'])} topics, {s['duration']:.3f} s, "
+             f"{s['size_bytes'] / 1024:.1f} KiB, {'closed properly' if s['closed'] else 'NOT closed properly'}"]
+    if s["loss"]:
+        lines.append("  LOST: " + s["loss"])
+    m = s["metadata"]
+    if m:
+        lines.append(f"  recorded by flagbot_sim {m['package_version']} {m['source_revision']} at {m['created_utc']}; "
+                     f"scene {'stored' if m['scene'] else 'not stored'}, {m['parameters']} parameters")
+    lines.append(f"  {'topic':34s} {'type':38s} {'count':>8s} {'rate Hz':>9s}")
+    for t in s["topics"]:
+        rate = f"{t['rate_hz']:9.2f}" if t["rate_hz"] is not None else " " * 9
+        lines.append(f"  {t['topic']:34s} {t['type']:38s} {t['count']:8d} {rate}")
+    if s["steps"]:
+        lines.append(f"omega_T steps (steady = mean over the last {100 * s['tail']:.0f} % of each step; "
+                     f"time = {s['time_axis']} time, s):")
+        lines.append(f"  {'#':>2s} {'t_start':>9s} {'t_end':>9s} {'omega_T rad/s':>14s} {'(rpm)':>8s} "
+                     f"{'omega_h rad/s':>14s} {'omega_t rad/s':>14s} {'v mm/s':>10s} {'n':>5s}")
+        for st in s["steps"]:
+            lines.append(f"  {st['index']:2d} {st['t_start']:9.3f} {st['t_end']:9.3f} {st['omega_T']:14.4f} "
+                         f"{st['omega_T'] / RPM:8.1f} {st['omega_h']:14.4f} {st['omega_t']:14.4f} "
+                         f"{1e3 * st['v']:10.4f} {st['samples']:5d}"
+                         + ("  (initial)" if st["source"] == "initial" else ""))
+    else:
+        lines.append("no cmd_omega in this recording: no omega_T steps")
+    return "\n".join(lines)
+
+
+def plot_summary(s: dict, out: str | Path) -> None:
+    """PNG of v, omega_h, omega_t over time, with the step boundaries and the steady windows."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 7.5))
+    panels = [("speed", 1e3, "v (mm/s)"), ("omega_h", 1.0, "omega_h (rad/s)"), ("omega_t", 1.0, "omega_t (rad/s)")]
+    keys = {"speed": "v", "omega_h": "omega_h", "omega_t": "omega_t"}
+    for ax, (name, scale, label) in zip(axes, panels):
+        ser = s["series"][name]
+        ax.plot(ser["t"], scale * ser["y"], lw=1.0)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        for st in s["steps"]:
+            ax.axvline(st["t_start"], color="0.6", ls=":", lw=0.8)
+            lo = st["t_end"] - s["tail"] * (st["t_end"] - st["t_start"])
+            ax.axvspan(lo, st["t_end"], color="C1", alpha=0.12, lw=0)
+            val = st[keys[name]]
+            if math.isfinite(val):
+                ax.hlines(scale * val, lo, st["t_end"], color="C1", lw=2)
+    span = max((st["t_end"] for st in s["steps"]), default=0.0) - min((st["t_start"] for st in s["steps"]),
+                                                                     default=0.0)
+    for st in s["steps"]:
+        if st["t_end"] - st["t_start"] >= 0.03 * span:     # a label per step that is wide enough to carry one
+            axes[0].annotate(f"{st['omega_T'] / RPM:.0f} rpm", (st["t_start"], 1.0),
+                             xycoords=("data", "axes fraction"), fontsize=8, va="bottom")
+    axes[-1].set_xlabel(f"{s['time_axis']} time (s)")
+    fig.suptitle(Path(s["path"]).name, y=0.995)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def cmd_summary(args) -> int:
+    from .cli import json_default
+    try:
+        s = summarize(args.bag, namespace=args.namespace, tail=args.tail, time_axis=args.time)
+    except BagError as exc:
+        return _fail(exc)
+    if args.plot:
+        plot_summary(s, args.plot)
+    if args.json:
+        s = dict(s)
+        s.pop("series")
+        print(json.dumps(s, default=json_default))
+    else:
+        print(format_summary(s))
+        if args.plot:
+            print(f"plot: {args.plot}")
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("record", help="record flagbot topics to MCAP (rosbag2 layout) until Ctrl-C")
+    add_record_arguments(p)
+    p.set_defaults(func=cmd_record)
+    p = subparsers.add_parser("replay", help="replay an MCAP recording with its timing and /clock")
+    add_replay_arguments(p)
+    p.set_defaults(func=cmd_replay)
+    p = subparsers.add_parser("bag-summary", help="topics, counts, duration and the steady state of each omega_T step")
+    p.add_argument("bag")
+    p.add_argument("--plot", metavar="PNG", help="write a plot of v, omega_h, omega_t over time")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--tail", type=float, default=0.25, help="fraction of each step averaged as steady (default 0.25)")
+    p.add_argument("--time", choices=["auto", "sim", "log"], default="auto",
+                   help="time axis: sim (from /clock), log (receive time) or auto (sim if /clock was recorded)")
+    p.add_argument("--namespace", default=None, help="robot namespace (default: found from the topics)")
+    p.set_defaults(func=cmd_summary)
+    p = subparsers.add_parser("bag-recover", help="rewrite the readable part of a damaged MCAP file into a valid one")
+    p.add_argument("bag")
+    p.add_argument("-o", "--output", help="output file (default: BAG.recovered.mcap)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_recover)

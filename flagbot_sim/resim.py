@@ -1,0 +1,163 @@
+"""Re-simulation of a recorded run: feed the recorded commands to a fresh simulator and compare the motion.
+
+The recording holds the resolved scene (metadata ``flagbot_sim``: scene file + overrides + n_flagella) and the
+``joint_states`` stream, whose ``motor`` joint carries the command in force (velocity) and its integral (position)
+at every published simulation time. Between two samples with different commands the integral pins the step at
+which the new command took effect exactly:
+
+    t_switch = t_k + (phi_{k+1} - phi_k - w_{k+1} (t_{k+1} - t_k)) / (w_k - w_{k+1}),  rounded to a step of dt,
+
+so the re-simulation applies every command at the same step as the original run and should reproduce it to
+round-off. Pose (``head_pose``), omega_h and omega_t (``joint_states``) are compared at every recorded stamp.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import world
+from .bag import BagReader, find_topic
+from .physics import Simulation
+from .scene import SceneError, scene_from_dict
+
+
+class ResimulationError(ValueError):
+    pass
+
+
+@dataclass
+class Resimulation:
+    samples: int
+    duration: float
+    commands: list                      # [(t_switch, omega_T)]
+    max_position_error: float           # m
+    max_omega_h_error: float            # rad/s
+    max_omega_t_error: float            # rad/s
+    notes: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def _stamp(m) -> float:
+    return m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
+
+
+def command_schedule(t: np.ndarray, angle: np.ndarray, rate: np.ndarray, dt: float | None
+                     ) -> tuple[list, list]:
+    """[(t_switch, omega)] from the motor joint samples (the first entry starts at t[0]); switch times rounded to
+    steps of dt (None: not rounded). Also notes about anything that could not be pinned."""
+    notes = []
+    schedule = [(float(t[0]), float(rate[0]))]
+    for k in range(len(t) - 1):
+        wa, wb = rate[k], rate[k + 1]
+        if wa == wb:
+            continue
+        ts = t[k] + (angle[k + 1] - angle[k] - wb * (t[k + 1] - t[k])) / (wa - wb)
+        off_step = False
+        if dt is not None:
+            n = round(ts / dt)
+            off_step = abs(ts / dt - n) > 1e-3
+            ts = n * dt
+        if off_step or not (t[k] - 1e-9 <= ts <= t[k + 1] + 1e-9):
+            notes.append(f"between t = {t[k]:.4f} s and {t[k + 1]:.4f} s the command changed more than once "
+                         f"(or off a step); its switch time is taken as {ts:.4f} s")
+        schedule.append((float(ts), float(wb)))
+    return schedule, notes
+
+
+def resimulate(path, namespace: str | None = None, progress=None) -> Resimulation:
+    """Re-simulate a recording; ``progress(fraction)`` is called as it goes."""
+    with BagReader(path) as r:
+        meta = r.run_metadata()
+        if meta is None or not meta.scene_toml:
+            raise ResimulationError(f"{path}: no flagbot_sim metadata with the scene: not recorded by sim_node's "
+                                    "`record` parameter or `record --params-from /sim_node`")
+        js_topic = find_topic(r.topics, "joint_states", namespace)
+        pose_topic = find_topic(r.topics, "head_pose", namespace)
+        if js_topic is None or pose_topic is None:
+            raise ResimulationError(f"{path}: needs the joint_states and head_pose topics")
+        js = [m for _, _, m in r.decoded(js_topic)]
+        poses = {round(_stamp(m), 9): m.pose.position for _, _, m in r.decoded(pose_topic)}
+        notes = [] if r.report.ok else [f"the recording is damaged: {r.report.describe_loss()}"]
+    if not js or "motor" not in js[0].name:
+        raise ResimulationError(f"{path}: joint_states has no 'motor' joint (recorded by an older version?)")
+    try:
+        scene = scene_from_dict(tomllib.loads(meta.scene_toml))
+        # a standalone recorder stores the scene file as written: apply the node's overrides (idempotent on the
+        # resolved scene that sim_node's own recorder stores)
+        extra = [o for o in meta.parameters.get("scene_overrides", []) if str(o).strip()]
+        if meta.parameters.get("n_flagella"):
+            extra.append(f"robot.n_flagella={int(meta.parameters['n_flagella'])}")
+        if extra:
+            scene = scene.with_overrides(extra)
+    except (SceneError, tomllib.TOMLDecodeError) as exc:
+        raise ResimulationError(f"{path}: the recorded scene does not load: {exc}") from None
+    # samples in time order, one per stamp; a reset (motor angle back to zero) ends what can be compared
+    seen, samples = set(), []
+    for m in sorted(js, key=_stamp):
+        ts = round(_stamp(m), 9)
+        if ts not in seen:
+            seen.add(ts)
+            samples.append(m)
+    im = samples[0].name.index("motor")
+    t = np.array([_stamp(m) for m in samples])
+    angle = np.array([m.position[im] for m in samples])
+    rate = np.array([m.velocity[im] for m in samples])
+    drop = np.nonzero(np.diff(angle) * np.sign(rate[:-1] + 1e-300) < -1e-9)[0]
+    if len(drop):
+        cut = drop[0] + 1
+        notes.append(f"the run was reset at t = {t[cut]:.3f} s: compared up to there")
+        samples, t, angle, rate = samples[:cut], t[:cut], angle[:cut], rate[:cut]
+    if t[0] > 0.5 * scene.time.dt:
+        # the first sample is after the start: the command before it was the node's initial_omega (motor at 0)
+        w0 = float(meta.parameters.get("initial_omega", rate[0]))
+        t, angle, rate = np.r_[0.0, t], np.r_[0.0, angle], np.r_[w0, rate]
+        samples = [None] + samples
+    schedule, more = command_schedule(t, angle, rate, scene.time.dt)
+    notes += more
+    sim = Simulation(scene)
+    dt = scene.time.dt
+    origin = sim.observer.position(sim.initial)
+    sim.set_omega(schedule[0][1])
+    next_cmd = 1
+    err_x = err_h = err_t = 0.0
+    for k, m in enumerate(samples):
+        if m is None:
+            continue
+        target = t[k]
+        while sim.time < target - 0.5 * dt:
+            if next_cmd < len(schedule) and sim.time >= schedule[next_cmd][0] - 0.5 * dt:
+                sim.set_omega(schedule[next_cmd][1])
+                next_cmd += 1
+            sim.step()
+        if abs(sim.time - target) > 1e-6:
+            notes.append(f"recorded stamp {target:.6f} s is not on a step of {dt} s")
+            continue
+        if sim.steps == 0:
+            continue                                   # before the first step there is no rate to compare
+        ob = sim.observer
+        err_h = max(err_h, abs(ob.rate_h - m.velocity[0]))
+        err_t = max(err_t, abs(ob.rate_t - m.velocity[1]))
+        p = poses.get(round(target, 9))
+        if p is not None:
+            w = world.to_world(ob.position(sim.state), origin)
+            err_x = max(err_x, float(np.linalg.norm(w - np.array([p.x, p.y, p.z]))))
+        if progress is not None:
+            progress(target / t[-1])
+    return Resimulation(samples=sum(m is not None for m in samples), duration=float(t[-1]), commands=schedule, max_position_error=err_x,
+                        max_omega_h_error=err_h, max_omega_t_error=err_t, notes=notes)
+
+
+def format_report(res: Resimulation, path) -> str:
+    lines = [f"re-simulation of {path}: {res.samples} samples over {res.duration:.3f} s of simulated time, "
+             f"{len(res.commands)} command(s)"]
+    for ts, w in res.commands:
+        lines.append(f"  from t = {ts:8.3f} s: omega_T = {w:+.6f} rad/s ({w * 60 / (2 * math.pi):+.2f} rpm)")
+    lines += [f"  largest difference from the recording: head position {res.max_position_error:.3e} m, "
+              f"omega_h {res.max_omega_h_error:.3e} rad/s, omega_t {res.max_omega_t_error:.3e} rad/s"]
+    lines += [f"  note: {n}" for n in res.notes]
+    return "\n".join(lines)

@@ -1,0 +1,330 @@
+"""Recorder: raw (serialized) subscriptions written to MCAP in rosbag2's layout (:mod:`flagbot_sim.bag`).
+
+Two ways to use it:
+
+- standalone, the ``record`` console script / ``python -m flagbot_sim record``: one node that records until
+  SIGINT/SIGTERM (then the file is closed with its summary and index) or ``--duration``;
+- inside an existing node (the sim_node's ``record`` parameter): ``Recorder(node, path, topics, metadata)``, then
+  ``close()`` when done. It creates its subscriptions and one timer on that node and runs a small flush thread.
+
+Topics: the default list :data:`flagbot_sim.ros.names.DEFAULT_RECORD_TOPICS` (relative names resolved in the
+node's namespace), an explicit list, or :data:`ALL` (every topic visible in the graph). A topic is subscribed once
+it has a publisher, so its type comes from the graph and the subscription QoS can match the publishers': RELIABLE
+only if every publisher is reliable (a reliable reader does not match a best-effort writer), TRANSIENT_LOCAL if
+every publisher is (so latched messages are recorded too), else VOLATILE. Topics that appear later are picked up by
+a graph poll every ``poll_period`` seconds.
+
+Timing: log time = the middleware's receive timestamp (system clock, like rosbag2), publish time = the header stamp
+of stamped types. Crash safety: the flush thread closes a chunk and flushes the file at least every
+``flush_interval`` (0.5 s), independently of the executor, so a SIGKILL loses at most that plus queued messages.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import re
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
+
+from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
+                   WriteSummary, normalize_type, qos_to_yaml)
+from .names import DEFAULT_RECORD_TOPICS
+
+#: pass as ``topics`` to record every topic visible in the graph
+ALL = "all"
+
+
+def message_class(type_name: str) -> type:
+    """The rclpy message class of ``pkg/msg/Type``."""
+    pkg, ns, name = normalize_type(type_name).split("/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.{ns}"), name)
+    except (ImportError, AttributeError) as exc:
+        raise BagError(f"message type {type_name} is not installed ({exc})") from None
+
+
+_REL = {ReliabilityPolicy.RELIABLE: "reliable", ReliabilityPolicy.BEST_EFFORT: "best_effort",
+        ReliabilityPolicy.SYSTEM_DEFAULT: "system_default"}
+_DUR = {DurabilityPolicy.TRANSIENT_LOCAL: "transient_local", DurabilityPolicy.VOLATILE: "volatile",
+        DurabilityPolicy.SYSTEM_DEFAULT: "system_default"}
+_HIST = {HistoryPolicy.KEEP_LAST: "keep_last", HistoryPolicy.KEEP_ALL: "keep_all",
+         HistoryPolicy.SYSTEM_DEFAULT: "system_default"}
+_LIVE = {LivelinessPolicy.AUTOMATIC: "automatic", LivelinessPolicy.MANUAL_BY_TOPIC: "manual_by_topic",
+         LivelinessPolicy.SYSTEM_DEFAULT: "system_default"}
+
+
+def _ns(d) -> int:
+    return int(getattr(d, "nanoseconds", 0))
+
+
+def qos_info(profile: QoSProfile) -> QosInfo:
+    """rclpy QoS profile (e.g. a publisher's, from the graph) -> the bag's QosInfo."""
+    return QosInfo(history=_HIST.get(profile.history, "unknown"), depth=int(profile.depth),
+                   reliability=_REL.get(profile.reliability, "unknown"),
+                   durability=_DUR.get(profile.durability, "unknown"),
+                   liveliness=_LIVE.get(profile.liveliness, "unknown"),
+                   deadline_ns=_ns(profile.deadline), lifespan_ns=_ns(profile.lifespan),
+                   liveliness_lease_ns=_ns(profile.liveliness_lease_duration))
+
+
+def adapted_qos(publishers: Sequence[QosInfo], depth: int = 1000) -> QoSProfile:
+    """A subscription QoS that matches every publisher (rosbag2's adaptation rule)."""
+    reliable = bool(publishers) and all(q.reliability == "reliable" for q in publishers)
+    latched = bool(publishers) and all(q.durability == "transient_local" for q in publishers)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def _hidden(topic: str) -> bool:
+    return any(part.startswith("_") for part in topic.split("/"))
+
+
+class Recorder:
+    """Record topics seen by ``node`` into an MCAP file.
+
+    :param topics: None (the flagbot default list), a list of names (relative ones resolved in the node's
+        namespace) or :data:`ALL`.
+    :param metadata: :class:`flagbot_sim.bag.RunMetadata` (scene, parameters, version) written at the start.
+    :param exclude: regular expressions; matching topics are not recorded (useful with ALL).
+    """
+
+    def __init__(self, node: Node, path: str | Path, topics: Iterable[str] | str | None = None,
+                 metadata: RunMetadata | None = None, *, exclude: Iterable[str] = (), include_hidden: bool = False,
+                 poll_period: float = 0.5, flush_interval: float = DEFAULT_FLUSH_INTERVAL,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = "zstd", overwrite: bool = False,
+                 depth: int = 1000, callback_group=None):
+        self.node = node
+        self.all_topics = topics == ALL
+        names = DEFAULT_RECORD_TOPICS if topics is None else ([] if self.all_topics else list(topics))
+        self.wanted = [node.resolve_topic_name(t) for t in names]
+        self.exclude = [re.compile(x) for x in exclude]
+        self.include_hidden = include_hidden
+        self.depth = depth
+        self.writer = BagWriter(path, metadata=metadata if metadata is not None else RunMetadata(),
+                                chunk_size=chunk_size, compression=compression, flush_interval=flush_interval,
+                                overwrite=overwrite)
+        self.path = self.writer.path
+        self._subs: dict[str, object] = {}
+        self._mismatch_warned: set[str] = set()
+        self._closed = False
+        self._group = callback_group or MutuallyExclusiveCallbackGroup()
+        # the poll follows wall time even when the node uses sim time (a paused /clock must not stop it)
+        self._poll_timer = node.create_timer(poll_period, self._poll, callback_group=self._group,
+                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._stop = threading.Event()
+        self._flusher = threading.Thread(target=self._flush_loop, name="bag-flush", daemon=True)
+        self._flusher.start()
+        self._poll()
+
+    # -- graph
+    def _selected(self, topic: str) -> bool:
+        if any(x.search(topic) for x in self.exclude):
+            return False
+        if self.all_topics:
+            return self.include_hidden or not _hidden(topic)
+        return topic in self.wanted
+
+    def _poll(self) -> None:
+        if self._closed:
+            return
+        try:
+            graph = self.node.get_topic_names_and_types()
+        except Exception:  # context shutting down
+            return
+        for topic, types in graph:
+            if topic in self._subs or not self._selected(topic):
+                continue
+            if len(types) != 1:
+                if topic not in self._mismatch_warned:
+                    self._mismatch_warned.add(topic)
+                    self.node.get_logger().warning(f"not recording {topic}: several types {types}")
+                continue
+            pubs = self.node.get_publishers_info_by_topic(topic)
+            if not pubs:  # type and QoS come from publishers; a subscriber-only topic waits for one
+                continue
+            self._subscribe(topic, types[0], pubs)
+
+    def _subscribe(self, topic: str, type_name: str, pubs) -> None:
+        try:
+            cls = message_class(type_name)
+            offered = [qos_info(p.qos_profile) for p in pubs]
+            type_hash = str(pubs[0].topic_type_hash) if pubs and getattr(pubs[0], "topic_type_hash", None) else ""
+            self.writer.add_topic(topic, type_name, offered_qos_profiles=qos_to_yaml(offered), type_hash=type_hash)
+        except BagError as exc:
+            self._subs[topic] = None  # do not retry every poll
+            self.node.get_logger().error(f"not recording {topic}: {exc}")
+            return
+
+        def on_message(data, info, topic=topic):
+            self._on_message(topic, data, info)
+
+        self._subs[topic] = self.node.create_subscription(cls, topic, on_message, adapted_qos(offered, self.depth),
+                                                          callback_group=self._group, raw=True)
+        self.node.get_logger().info(f"recording {topic} [{normalize_type(type_name)}]")
+
+    def _on_message(self, topic: str, data: bytes, info) -> None:
+        t = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
+        if not self.writer.write(topic, data, t or time.time_ns()) and self.writer.error and not self._closed:
+            if topic not in self._mismatch_warned:
+                self._mismatch_warned.add(topic)
+                self.node.get_logger().error(f"recording stopped: {self.writer.error}; the file is readable up to "
+                                             f"the last flush (flagbot bag-recover)")
+
+    def _flush_loop(self) -> None:
+        period = min(0.1, self.writer.flush_interval / 4)
+        while not self._stop.wait(period):
+            self.writer.maybe_flush()
+
+    # -- API
+    @property
+    def recorded_topics(self) -> dict[str, str]:
+        """topic -> type of every topic subscribed so far."""
+        return self.writer.topics
+
+    def wait_for_topics(self, topics: Iterable[str] | None = None, timeout: float = 10.0) -> bool:
+        """Block until the given (default: all wanted) topics are subscribed; the node must be spun elsewhere."""
+        want = [self.node.resolve_topic_name(t) for t in topics] if topics is not None else self.wanted
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if all(t in self._subs for t in want):
+                return True
+            time.sleep(0.05)
+        return False
+
+    def close(self) -> WriteSummary:
+        """Stop recording and close the file with its summary and index. Safe after rclpy shut down."""
+        if not self._closed:
+            self._closed = True
+            self._stop.set()
+            self._flusher.join(timeout=2.0)
+            for sub in self._subs.values():
+                if sub is not None:
+                    try:
+                        self.node.destroy_subscription(sub)
+                    except Exception:
+                        pass
+            try:
+                self.node.destroy_timer(self._poll_timer)
+            except Exception:
+                pass
+        return self.writer.close()
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# standalone node
+
+
+def scene_text(name_or_path: str) -> str:
+    from ..scene import resolve_scene_path
+    return resolve_scene_path(name_or_path).read_text()
+
+
+def fetch_parameters(node: Node, executor, target: str, timeout: float = 10.0) -> dict:
+    """All parameters of node ``target`` through its parameter services."""
+    from rclpy.parameter import parameter_value_to_python
+    from rclpy.parameter_client import AsyncParameterClient
+    client = AsyncParameterClient(node, target)
+    if not client.wait_for_services(timeout_sec=timeout):
+        raise BagError(f"node {target} offers no parameter services within {timeout:.0f} s")
+    fut = client.list_parameters()
+    executor.spin_until_future_complete(fut, timeout_sec=timeout)
+    if not fut.done():
+        raise BagError(f"listing the parameters of {target} timed out")
+    names = list(fut.result().result.names)
+    fut = client.get_parameters(names)
+    executor.spin_until_future_complete(fut, timeout_sec=timeout)
+    if not fut.done():
+        raise BagError(f"reading the parameters of {target} timed out")
+    return {n: parameter_value_to_python(v) for n, v in zip(names, fut.result().values)}
+
+
+def default_output() -> str:
+    return time.strftime("flagbot_%Y%m%d_%H%M%S.mcap")
+
+
+def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
+    """Run the recorder node until SIGINT/SIGTERM or ``--duration``. Returns the exit code."""
+    extra = {}
+    for kv in args.metadata or []:
+        k, sep, v = kv.partition("=")
+        if not sep:
+            raise BagError(f"--metadata takes KEY=VALUE, got {kv!r}")
+        extra[k] = v
+    meta = RunMetadata(scene_toml=scene_text(args.scene) if args.scene else "", extra=extra)
+    topics = ALL if args.all else (args.topics or None)
+    rclpy.init(args=ros_args)
+    node = executor = rec = None
+    summary = None
+    code = 0
+    try:
+        node = rclpy.create_node(args.node_name, namespace=args.namespace or None)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        if args.params_from:
+            meta.parameters = fetch_parameters(node, executor, args.params_from)
+            # the sim_node's `scene` parameter names a built-in scene or a file: store its text too (overrides
+            # are in `scene_overrides`, among the parameters)
+            if not meta.scene_toml and isinstance(meta.parameters.get("scene"), str):
+                try:
+                    meta.scene_toml = scene_text(meta.parameters["scene"])
+                except Exception as exc:
+                    node.get_logger().warning(f"scene {meta.parameters['scene']!r} not stored: {exc}")
+        rec = Recorder(node, args.output or default_output(), topics, meta, exclude=args.exclude or (),
+                       compression=args.compression, overwrite=args.overwrite)
+        what = "all topics" if rec.all_topics else ", ".join(rec.wanted)
+        print(f"recording {what} to {rec.path} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+        end = time.monotonic() + args.duration if args.duration else None
+        while rclpy.ok() and (end is None or time.monotonic() < end):
+            executor.spin_once(timeout_sec=0.1 if end is None else max(0.0, min(0.1, end - time.monotonic())))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        # a signal can shut the context down between rclpy.ok() and the wait inside spin_once: that is the
+        # normal end; anything else is a real error (the file is still closed below)
+        if rclpy.ok():
+            raise
+    finally:
+        if rec is not None:
+            summary = rec.close()
+        if executor is not None and node is not None:
+            executor.remove_node(node)
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if summary is not None:
+        print(summary.format(), flush=True)
+        code = 1 if summary.error else 0
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``record`` console script: ``record [TOPIC ...] [-o out.mcap] [--all] ... [--ros-args ...]``."""
+    from rclpy.utilities import remove_ros_args
+
+    from ..bagtools import add_record_arguments
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog="record", description="Record flagbot topics to an MCAP file "
+                                     "(rosbag2 layout).")
+    add_record_arguments(parser)
+    args = parser.parse_args(remove_ros_args(["record"] + argv)[1:])
+    try:
+        return run(args, ros_args=["record"] + argv)
+    except BagError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

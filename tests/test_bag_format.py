@@ -1,0 +1,399 @@
+"""MCAP layout, damaged files and the analysis command — no DDS (messages are serialized in-process)."""
+import errno
+import io
+import json
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from bag_testlib import ROOT, TOPIC_TYPES, full_topic, make_message, stamp_ns, to_plain
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.serialization import serialize_message
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import get_types_from_msg
+
+import flagbot_sim
+from flagbot_sim import bag
+from flagbot_sim.bag import BagReader, BagWriter, NotMcapError, RunMetadata, recover, scan
+
+SHARE = Path(sys.prefix) / "share"
+
+
+class FakeClock:
+    """The writer's monotonic clock, advanced by the test: flushes then happen at known message indices."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def flagbot(*args):
+    env = dict(os.environ, PYTHONPATH=ROOT)
+    return subprocess.run([sys.executable, "-m", "flagbot_sim", *args], capture_output=True, text=True, env=env,
+                          cwd=ROOT, timeout=120)
+
+
+def write_stream_bag(target, n=1000, rate=100.0, **kw):
+    """n Float64 messages (data = index) at `rate` Hz of log time; the writer's clock follows the log time."""
+    from std_msgs.msg import Float64
+    clock = FakeClock()
+    w = BagWriter(target, clock=clock, metadata=RunMetadata(scene_toml="[robot]\nn_flagella = 2\n"), **kw)
+    w.add_topic("/t/omega_h", "std_msgs/msg/Float64")
+    t0 = 1_000_000_000_000
+    for k in range(n):
+        clock.t = k / rate
+        w.write("/t/omega_h", serialize_message(Float64(data=float(k))), t0 + int(k * 1e9 / rate))
+    return w
+
+
+def values(path):
+    with BagReader(path) as r:
+        return [int(r.decode(m).data) for m in r.messages()]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# layout
+
+
+def test_joint_state_schema_is_rosbag2s_full_definition():
+    """rosbag2 stores the .msg text, then each dependency after 80 '=' and 'MSG: pkg/Type', depth first."""
+    text = lambda p: (SHARE / p).read_text()  # noqa: E731
+    sep = "=" * 80 + "\n"
+    expected = (text("sensor_msgs/msg/JointState.msg") + "\n" + sep + "MSG: std_msgs/Header\n"
+                + text("std_msgs/msg/Header.msg") + "\n" + sep + "MSG: builtin_interfaces/Time\n"
+                + text("builtin_interfaces/msg/Time.msg"))
+    assert bag.message_definition("sensor_msgs/msg/JointState") == expected
+
+
+@pytest.mark.parametrize("type_name", sorted(set(TOPIC_TYPES.values())))
+def test_every_flagbot_schema_parses_in_both_readers_and_lists_each_dependency_once(type_name):
+    text = bag.message_definition(type_name)
+    deps = [line[5:] for line in text.splitlines() if line.startswith("MSG: ")]
+    assert len(deps) == len(set(deps))
+    for i, line in enumerate(text.splitlines()):
+        if line.startswith("MSG: "):
+            assert text.splitlines()[i - 1] == "=" * 80
+    assert type_name in generate_dynamic_names(type_name, text)
+    types = get_types_from_msg(text, type_name)     # rosbags' parser
+    assert type_name in types and all(f"{d.split('/')[0]}/msg/{d.split('/')[-1]}" in types for d in deps)
+
+
+def generate_dynamic_names(type_name, text):
+    from mcap_ros2._dynamic import generate_dynamic
+    return set(generate_dynamic(type_name, text))
+
+
+def test_writer_layout_timing_and_metadata(tmp_path):
+    """Profile ros2, schemas ros2msg named pkg/msg/Type, channels cdr with QoS, publish time = header stamp,
+    the run metadata (scene, parameters, version) and rosbag2's own metadata record."""
+    path = tmp_path / "layout.mcap"
+    params = {"dt": 0.01, "omega_T": 10.5, "n_flagella": 3, "frame": "world", "gains": [1.0, 2.0]}
+    scene = (Path(flagbot_sim.__file__).parent / "scenes" / "design1.toml").read_text()
+    w = BagWriter(path, metadata=RunMetadata(scene_toml=scene, parameters=params, extra={"operator": "ci"}))
+    qos = bag.qos_to_yaml([bag.QosInfo(durability="transient_local", depth=1)])
+    expected = {}
+    for name, type_name in TOPIC_TYPES.items():
+        w.add_topic(full_topic("/t", name), type_name, offered_qos_profiles=qos)
+    for k in range(5):
+        for name in TOPIC_TYPES:
+            m = make_message(name, k)
+            log = 2_000_000_000_000 + 10_000_000 * k
+            w.write(full_topic("/t", name), serialize_message(m), log)
+            expected.setdefault(full_topic("/t", name), []).append((to_plain(m), log, stamp_ns(m) or log))
+    summary = w.close()
+    assert summary.closed and summary.messages == 35
+
+    with open(path, "rb") as f:
+        r = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert r.get_header().profile == "ros2"
+        s = r.get_summary()
+        assert s.statistics.message_count == 35 and s.chunk_indexes
+        assert {sc.name for sc in s.schemas.values()} == set(TOPIC_TYPES.values())
+        assert all(sc.encoding == "ros2msg" for sc in s.schemas.values())
+        assert all(ch.message_encoding == "cdr" for ch in s.channels.values())
+        got = {}
+        for _, ch, msg, dec in r.iter_decoded_messages():
+            got.setdefault(ch.topic, []).append((to_plain(dec), msg.log_time, msg.publish_time))
+        meta = {m.name: m.metadata for m in r.iter_metadata()}
+    assert got == expected
+    assert "version: 9" in meta["rosbag2"]["serialized_metadata"]
+    rm = RunMetadata.from_record(meta["flagbot_sim"])
+    assert rm.scene_toml == scene and rm.parameters == params and rm.extra == {"operator": "ci"}
+    assert rm.package_version == flagbot_sim.__version__
+    with AnyReader([path]) as ar:           # rosbags parses the QoS strings and counts everything
+        assert ar.message_count == 35
+        q = {c.topic: c.ext.offered_qos_profiles[0] for c in ar.connections}
+        assert q["/t/odom"].durability.name == "TRANSIENT_LOCAL" and q["/t/odom"].depth == 1
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# damage
+
+
+def test_truncation_anywhere_recovers_exactly_the_complete_chunks(tmp_path):
+    """A file cut at any byte (kill -9, full disk) yields every message of every chunk written completely before
+    the cut, never raises, says it was not closed, and recover() turns it into a valid file for other readers."""
+    src = tmp_path / "full.mcap"
+    w = write_stream_bag(src)
+    assert w.close().closed
+    data = src.read_bytes()
+    chunks = [c for c, _ in _chunks(src)]
+    assert len(chunks) >= 15     # 10 s at a 0.5 s flush interval
+
+    counts = [n for _, n in _chunks(src)]
+    cuts = sorted({20, 200, 600} | {len(data) * i // 37 for i in range(1, 37)} | {len(data) - 1, len(data) - 40})
+    cut_file = tmp_path / "cut.mcap"
+    previous = -1
+    for cut in cuts:
+        cut_file.write_bytes(data[:cut])
+        rep = scan(cut_file)
+        expected = sum(n for c, n in zip(chunks, counts) if c.chunk_start_offset + c.chunk_length <= cut)
+        assert rep.messages == expected, f"cut at {cut}"
+        assert values(cut_file) == list(range(expected))
+        assert not rep.closed and not rep.ok and "not closed properly" in rep.describe_loss()
+        assert rep.messages >= previous
+        previous = rep.messages
+    # the last cut (inside the footer) keeps everything; the recovered file is valid for mcap and rosbags
+    out = tmp_path / "recovered.mcap"
+    cut_file.write_bytes(data[: len(data) * 20 // 37])
+    rep = recover(cut_file, out)
+    with open(out, "rb") as f:
+        assert make_reader(f).get_summary().statistics.message_count == rep.messages > 0
+    with AnyReader([out]) as ar:
+        assert ar.message_count == rep.messages
+    assert scan(out).ok
+    assert BagReader(out).metadata_named("flagbot_sim.recovery")["recovered_messages"] == str(rep.messages)
+    assert BagReader(out).run_metadata().scene_toml == "[robot]\nn_flagella = 2\n"
+
+
+def _chunks(path):
+    """(chunk index, number of messages in the chunk) of an intact file, in file order."""
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+    with open(path, "rb") as f:
+        indexes = make_reader(f).get_summary().chunk_indexes
+    with open(path, "rb") as f:
+        counts = [sum(isinstance(r, Message) for r in breakup_chunk(c))
+                  for c in StreamReader(f, emit_chunks=True).records if isinstance(c, Chunk)]
+    assert len(indexes) == len(counts)
+    return list(zip(sorted(indexes, key=lambda c: c.chunk_start_offset), counts))
+
+
+@pytest.mark.parametrize("damage", ["data-byte", "length-field", "opcode", "zeroed-block", "first-chunk"])
+def test_corrupt_chunk_loses_only_that_chunk_and_says_so(tmp_path, damage):
+    src = tmp_path / "full.mcap"
+    write_stream_bag(src).close()
+    data = bytearray(src.read_bytes())
+    chunks = _chunks(src)
+    # the first chunk also carries the schema and channel; they are written outside chunks too, so later
+    # chunks stay decodable without it
+    c, n_lost = chunks[0 if damage == "first-chunk" else 7]
+    damage = "data-byte" if damage == "first-chunk" else damage
+    start = c.chunk_start_offset
+    if damage == "data-byte":
+        data[start + c.chunk_length - 20] ^= 0x55          # inside the compressed data: CRC/decompression fails
+    elif damage == "length-field":
+        data[start + 5] ^= 0x40                              # record length now points far past the file end
+    elif damage == "opcode":
+        data[start] = 0x7E
+    else:                                                    # a zeroed 4 KiB block (bad sector) over the chunk
+        data[start:start + 4096] = bytes(min(4096, len(data) - start))
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    rep = scan(bad)
+    lost_chunks = [k for k, (ck, _) in enumerate(chunks)
+                   if ck.chunk_start_offset < start + (4096 if damage == "zeroed-block" else 1)
+                   and ck.chunk_start_offset + ck.chunk_length > start]
+    n_expected_lost = sum(chunks[k][1] for k in lost_chunks)
+    assert n_expected_lost >= n_lost > 0
+    assert rep.messages == 1000 - n_expected_lost
+    assert rep.lost_messages == n_expected_lost            # exact: the summary survived
+    assert rep.closed and not rep.ok and rep.damage[0].offset == start
+    text = rep.describe_loss()
+    assert f"{n_expected_lost} of 1000 messages lost" in text and f"at byte {start}" in text
+    got = values(bad)
+    lost_values = set(range(1000)) - set(got)
+    assert got == sorted(got) and len(lost_values) == n_expected_lost
+    if damage == "data-byte":
+        assert rep.damage[0].kind == "corrupt-chunk"
+        lo, hi = (rep.damage[0].log_start_ns - 1e12) / 1e7, (rep.damage[0].log_end_ns - 1e12) / 1e7
+        assert lost_values == set(range(round(lo), round(hi) + 1))   # the reported time range is the lost one
+
+
+def test_full_disk_stops_recording_and_keeps_what_was_flushed(tmp_path):
+    """ENOSPC in the middle of a chunk: no exception into the node, `error` says what happened, and all but the
+    last flush interval is recoverable."""
+
+    class FullDisk(io.RawIOBase):
+        def __init__(self, limit):
+            self.buf, self.limit = bytearray(), limit
+
+        def writable(self):
+            return True
+
+        def write(self, b):
+            room = self.limit - len(self.buf)
+            if room <= 0:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            self.buf += bytes(b[:room])
+            if len(b) > room:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return len(b)
+
+        def tell(self):
+            return len(self.buf)
+
+    disk = FullDisk(12_000)
+    w = write_stream_bag(disk, n=1000)
+    assert w.error and "No space left on device" in w.error
+    failed_at = w.message_count
+    assert 0 < failed_at < 1000
+    assert w.write("/t/omega_h", b"\0\1\0\0" + bytes(8), 1) is False
+    summary = w.close()                                     # must not raise
+    assert not summary.closed and summary.error
+    damaged = tmp_path / "disk_full.mcap"
+    damaged.write_bytes(bytes(disk.buf))
+    got = values(damaged)
+    assert got == list(range(len(got)))
+    assert failed_at - len(got) <= 51                       # at most one flush interval (0.5 s at 100 Hz) lost
+    assert "not closed properly" in scan(damaged).describe_loss()
+
+
+@pytest.mark.parametrize("content, what", [(b"hello world\n", "starts with b'hello wo'"),
+                                           (b"", "the file is empty"),
+                                           (b"SQLite format 3\0" + bytes(100), "SQLite database"),
+                                           (b"#ROSBAG V2.0\n" + bytes(50), "ROS 1 bag")])
+def test_non_mcap_file_gets_a_clear_error(tmp_path, content, what):
+    p = tmp_path / "run.mcap"
+    p.write_bytes(content)
+    with pytest.raises(NotMcapError) as exc:
+        BagReader(p)
+    assert "is not an MCAP file" in str(exc.value) and what in str(exc.value)
+
+
+def test_cli_non_mcap_and_damaged_files(tmp_path):
+    p = tmp_path / "notes.txt"
+    p.write_text("not a recording")
+    for cmd in (["bag-summary", str(p)], ["replay", str(p)], ["bag-recover", str(p)]):
+        r = flagbot(*cmd)
+        assert r.returncode == 2, r.stderr
+        assert "is not an MCAP file" in r.stderr and "Traceback" not in r.stderr
+    src = tmp_path / "ok.mcap"
+    write_stream_bag(src, n=300).close()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(src.read_bytes()[:3000])
+    r = flagbot("bag-summary", str(cut))
+    assert r.returncode == 0 and "NOT closed properly" in r.stdout and "LOST:" in r.stdout
+    r = flagbot("bag-recover", str(cut), "-o", str(tmp_path / "fixed.mcap"))
+    assert r.returncode == 0 and "valid and indexed" in r.stdout
+    assert scan(tmp_path / "fixed.mcap").ok
+
+
+def test_a_rosbag2_directory_opens_its_mcap(tmp_path):
+    d = tmp_path / "run_0"
+    d.mkdir()
+    write_stream_bag(d / "run_0_0.mcap", n=10).close()
+    (d / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    assert scan(d).messages == 10
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# analysis
+
+
+def write_step_bag(path, with_clock=True, parameters=None):
+    """A synthetic run: omega_T 10 (from the scene) -> 5 -> 10 -> 10 (repeat) -> 15 rad/s; omega_h = 0.3 omega_T,
+    omega_t = 0.7 omega_T, v = 1e-3 omega_T, each approached with a 0.1 s time constant. Simulation time runs
+    twice as fast as log time and is recorded on /clock."""
+    import math
+
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Float64
+    scene = "[motor]\nomega_rpm = %r\n" % (10.0 / (2 * math.pi / 60))
+    w = BagWriter(path, metadata=RunMetadata(scene_toml=scene, parameters=parameters or {"rate": 100}))
+    for t in ("/bot/cmd_omega", "/bot/omega_h", "/bot/omega_t", "/bot/speed", "/bot/beam/omega_h"):
+        w.add_topic(t, "std_msgs/msg/Float64")
+    if with_clock:
+        w.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+    T0 = 3_000_000_000_000
+    log = lambda ts: T0 + int(ts / 2 * 1e9)  # noqa: E731  (sim time -> log time: sim runs 2x real time)
+    cmds = [(1.0, 5.0), (3.0, 10.0), (4.0, 10.0), (6.0, 15.0)]
+    w_now, y = 10.0, {"h": 3.0, "t": 7.0, "v": 0.01}
+    ci = 0
+    for k in range(0, 901):
+        ts = k * 0.01
+        while ci < len(cmds) and cmds[ci][0] <= ts + 1e-9:
+            w.write("/bot/cmd_omega", serialize_message(Float64(data=cmds[ci][1])), log(ts))
+            w_now = cmds[ci][1]
+            ci += 1
+        a = 1 - math.exp(-0.01 / 0.1)
+        y = {"h": y["h"] + a * (0.3 * w_now - y["h"]), "t": y["t"] + a * (0.7 * w_now - y["t"]),
+             "v": y["v"] + a * (1e-3 * w_now - y["v"])}
+        if with_clock:
+            c = Clock()
+            c.clock.sec, c.clock.nanosec = divmod(int(round(ts * 1e9)), 1_000_000_000)
+            w.write("/clock", serialize_message(c), log(ts))
+        w.write("/bot/omega_h", serialize_message(Float64(data=y["h"])), log(ts))
+        w.write("/bot/omega_t", serialize_message(Float64(data=y["t"])), log(ts))
+        w.write("/bot/speed", serialize_message(Float64(data=y["v"])), log(ts))
+        w.write("/bot/beam/omega_h", serialize_message(Float64(data=-1.0)), log(ts))
+    w.close()
+
+
+def test_bag_summary_finds_the_steps_and_their_steady_state(tmp_path):
+    from flagbot_sim.bagtools import summarize
+    path = tmp_path / "steps.mcap"
+    write_step_bag(path)
+    s = summarize(path)
+    assert s["time_axis"] == "sim" and s["namespace"] == "/bot"
+    steps = s["steps"]
+    # the scene's speed until the first command, then one step per change (the repeated 10 is not a step)
+    assert [(st["source"], st["omega_T"]) for st in steps] == [("initial", pytest.approx(10.0)), ("cmd_omega", 5.0),
+                                                               ("cmd_omega", 10.0), ("cmd_omega", 15.0)]
+    assert [st["t_start"] for st in steps] == pytest.approx([0.0, 1.0, 3.0, 6.0], abs=1e-6)   # simulated seconds
+    for st in steps:   # steady values, not the beam/ topic of the same name, not the transient
+        assert st["omega_h"] == pytest.approx(0.3 * st["omega_T"], rel=1e-3)
+        assert st["omega_t"] == pytest.approx(0.7 * st["omega_T"], rel=1e-3)
+        assert st["v"] == pytest.approx(1e-3 * st["omega_T"], rel=1e-3)
+    s_log = summarize(path, time_axis="log")
+    assert [st["t_start"] for st in s_log["steps"]] == pytest.approx([0.0, 0.5, 1.5, 3.0], abs=1e-6)
+    # the sim_node's initial_omega parameter, when recorded, is the speed before the first command
+    write_step_bag(tmp_path / "param.mcap", parameters={"initial_omega": 2.0})
+    assert summarize(tmp_path / "param.mcap")["steps"][0]["omega_T"] == 2.0
+
+
+def test_bag_summary_cli_prints_json_and_writes_the_plot(tmp_path):
+    path = tmp_path / "steps.mcap"
+    write_step_bag(path, with_clock=False)
+    png = tmp_path / "plot.png"
+    r = flagbot("bag-summary", str(path), "--json", "--plot", str(png))
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["time_axis"] == "log" and len(out["steps"]) == 4 and out["messages"] == 4 + 4 * 901
+    assert {t["topic"]: t["count"] for t in out["topics"]}["/bot/speed"] == 901
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    r = flagbot("bag-summary", str(path))
+    assert r.returncode == 0 and "omega_T steps" in r.stdout and "/bot/cmd_omega" in r.stdout
+
+
+def test_read_run_gives_what_a_resimulation_needs(tmp_path):
+    path = tmp_path / "steps.mcap"
+    write_step_bag(path)
+    run = bag.read_run(path)
+    assert run.parameters == {"rate": 100} and "omega_rpm" in run.scene_toml
+    assert [c[2] for c in run.cmd_omega] == [5.0, 10.0, 10.0, 15.0]
+    assert [c[1] for c in run.cmd_omega] == pytest.approx([1.0, 3.0, 4.0, 6.0], abs=1e-6)   # sim time
+    assert [c[0] for c in run.cmd_omega] == pytest.approx([0.5, 1.5, 2.0, 3.0], abs=1e-6)   # log time
+
+
+def test_cdr_header_stamp_is_read_without_decoding():
+    m = make_message("joint_states", 3)
+    assert bag.cdr_header_stamp_ns(serialize_message(m)) == stamp_ns(m)
+    assert bag.has_header("sensor_msgs/msg/JointState") and not bag.has_header("visualization_msgs/msg/MarkerArray")
+    assert struct.unpack_from("<i", serialize_message(m), 4)[0] == 103

@@ -1,0 +1,280 @@
+"""Recorder and replay over real DDS, each node in its own process (localhost only, this test process's domain).
+
+Nothing here sleeps a fixed time to wait for discovery: publishers wait for subscribers, the tests poll the file
+being written (the reader reads a file that is still open) or the processes' output.
+"""
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bag_testlib import (DISCOVERY_TIMEOUT, TOPIC_TYPES, Proc, bag_messages, full_topic, make_message, record,
+                         stamp_ns, start_helper, to_plain, wait_for)
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.serialization import serialize_message
+from rosbags.highlevel import AnyReader
+
+from flagbot_sim.bag import BagReader, BagWriter, recover, scan
+
+ROUNDS = 20
+TOPICS = [full_topic("/t", n) for n in TOPIC_TYPES]
+
+
+def expected_messages(rounds=ROUNDS):
+    return {full_topic("/t", n): [make_message(n, k) for k in range(rounds)] for n in TOPIC_TYPES}
+
+
+def decoded_mcap_ros2(path):
+    got = {}
+    with open(path, "rb") as f:
+        for _, ch, msg, dec in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            got.setdefault(ch.topic, []).append((to_plain(dec), msg.log_time, msg.publish_time))
+    return got
+
+
+def decoded_rosbags(path):
+    got = {}
+    with AnyReader([Path(path)]) as ar:
+        for conn, _, raw in ar.messages():
+            got.setdefault(conn.topic, []).append(to_plain(ar.deserialize(raw, conn.msgtype)))
+    return got
+
+
+def record_published(tmp, sig, rounds=ROUNDS):
+    """Recorder (default flagbot topics in namespace /t) + publisher; stop the recorder with `sig` once every
+    message is in the file. Returns (path, recorder exit code, recorder output, publish log)."""
+    out = str(tmp / "published.mcap")
+    log = str(tmp / "published.jsonl")
+    rec = record(out, "--namespace", "/t", "--scene", "design1", "--metadata", "test=bag_ros")
+    pub = start_helper("publish", "--ns", "/t", "--rounds", str(rounds), "--rate", "20", "--log", log)
+    try:
+        code, output = pub.wait(timeout=DISCOVERY_TIMEOUT + 30)
+        assert code == 0, output
+        wait_for(lambda: bag_messages(out) >= rounds * len(TOPICS), 10.0, "all messages in the file", rec)
+        code, output = rec.stop(sig)
+    finally:
+        pub.kill()
+        rec.kill()
+    return out, code, output, [json.loads(line) for line in open(log)]
+
+
+@pytest.fixture(scope="module")
+def published(tmp_path_factory):
+    return record_published(tmp_path_factory.mktemp("published"), signal.SIGINT)
+
+
+def assert_closed_with_summary(path, n):
+    with open(path, "rb") as f:
+        r = make_reader(f)
+        s = r.get_summary()
+        assert s is not None and s.statistics.message_count == n
+        assert s.chunk_indexes and all(c.message_index_offsets for c in s.chunk_indexes)
+        assert sum(1 for _ in r.iter_messages()) == n    # through the index
+    rep = scan(path)
+    assert rep.ok and rep.closed and rep.messages == n
+
+
+def test_recording_decodes_equal_to_what_was_published_in_both_readers(published):
+    path, code, output, log = published
+    expected = expected_messages()
+    got = decoded_mcap_ros2(path)
+    assert set(got) == set(expected)
+    for topic, msgs in expected.items():
+        assert [g[0] for g in got[topic]] == [to_plain(m) for m in msgs], topic
+        # publish time = header stamp where there is one, else the receive (log) time
+        assert [g[2] for g in got[topic]] == [stamp_ns(m) or g[1] for m, g in zip(msgs, got[topic])], topic
+        # log time = receive time: after the publish call, within a fraction of a second
+        sent = [e["wall_ns"] for e in log if e["topic"] == topic]
+        lag = np.array([g[1] for g in got[topic]]) - np.array(sent)
+        assert np.all(lag > -5e6) and np.all(lag < 0.5e9), (topic, lag)
+    got2 = decoded_rosbags(path)
+    for topic, msgs in expected.items():
+        assert got2[topic] == [to_plain(m) for m in msgs], topic
+    meta = BagReader(path).run_metadata()
+    assert "[robot]" in meta.scene_toml and meta.extra == {"test": "bag_ros"}
+
+
+def test_sigint_closes_the_file_with_summary_and_index(published):
+    path, code, output, _ = published
+    assert code == 0, output
+    assert "closed with summary and index" in output and "Traceback" not in output
+    assert_closed_with_summary(path, ROUNDS * len(TOPICS))
+
+
+def test_sigterm_closes_the_file_with_summary_and_index(tmp_path):
+    path, code, output, _ = record_published(tmp_path, signal.SIGTERM, rounds=5)
+    assert code == 0, output
+    assert "closed with summary and index" in output and "Traceback" not in output
+    assert_closed_with_summary(path, 5 * len(TOPICS))
+
+
+def test_round_trip_record_replay_record(published, tmp_path):
+    """Replaying a recording while recording it again gives the same decoded messages, the same header stamps
+    and the same relative timing (within scheduling noise)."""
+    first = published[0]
+    second = str(tmp_path / "second.mcap")
+    rec = record(second, *TOPICS)
+    rep = Proc("-m", "flagbot_sim.ros.replay", first, "--wait-for-subscribers", str(DISCOVERY_TIMEOUT))
+    try:
+        code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + 30)
+        assert code == 0, output
+        assert f"replayed {ROUNDS * len(TOPICS)} messages" in output and "0 derived /clock" in output
+        wait_for(lambda: bag_messages(second) >= ROUNDS * len(TOPICS), 10.0, "the replayed messages", rec)
+        code, output = rec.stop()
+        assert code == 0, output
+    finally:
+        rep.kill()
+        rec.kill()
+    a, b = decoded_mcap_ros2(first), decoded_mcap_ros2(second)
+    assert set(a) == set(b) == set(TOPICS)
+    t0a = min(m[1] for v in a.values() for m in v)
+    t0b = min(m[1] for v in b.values() for m in v)
+    dev = []
+    for topic in TOPICS:
+        assert [m[0] for m in a[topic]] == [m[0] for m in b[topic]], topic
+        stamped = stamp_ns(make_message(next(n for n in TOPIC_TYPES if full_topic("/t", n) == topic), 0))
+        if stamped:
+            assert [m[2] for m in a[topic]] == [m[2] for m in b[topic]], topic
+        dev += [abs((mb[1] - t0b) - (ma[1] - t0a)) * 1e-9 for ma, mb in zip(a[topic], b[topic])]
+    print(f"round trip: timing deviation median {1e3 * np.median(dev):.1f} ms, max {1e3 * max(dev):.1f} ms")
+    # messages were 50 ms apart: timing noise well below that keeps their order and spacing
+    assert np.median(dev) < 0.010 and np.percentile(dev, 95) < 0.040 and max(dev) < 0.2, sorted(dev)[-10:]
+
+
+def test_kill9_loses_at_most_the_last_second(tmp_path):
+    """A recorder killed with SIGKILL leaves a file that normal readers reject but that recovers, contiguously,
+    up to within one second of the kill."""
+    out = str(tmp_path / "killed.mcap")
+    log = str(tmp_path / "stream.log")
+    rec = record(out, "/t/omega_h")
+    pub = start_helper("stream", "--topic", "/t/omega_h", "--rate", "200", "--log", log)
+    try:
+        n = wait_for(lambda: bag_messages(out) >= 300 and bag_messages(out), DISCOVERY_TIMEOUT + 10,
+                     "1.5 s of data in the file", rec)
+        # kill just before the next flush is due (the worst moment): a flush has just landed, wait 0.45 s more
+        wait_for(lambda: bag_messages(out) > n, 5.0, "the next flush", rec)
+        time.sleep(0.45)
+        t_kill = time.time_ns()
+        rec.proc.send_signal(signal.SIGKILL)
+        rec.proc.wait(timeout=10)
+        time.sleep(0.3)                     # keep publishing after the kill: nothing after it may appear
+    finally:
+        pub.stop()
+        rec.kill()
+    published = {int(k): int(t) for k, t in (line.split() for line in open(log))}
+    with pytest.raises(Exception):          # the standard readers need the summary/footer that never got written
+        with AnyReader([Path(out)]) as ar:
+            list(ar.messages())
+    rep = scan(out)
+    assert not rep.closed and "not closed properly" in rep.describe_loss()
+    fixed = tmp_path / "recovered.mcap"
+    recover(out, fixed)
+    with BagReader(fixed) as r:
+        ks = [int(r.decode(m).data) for m in r.messages()]
+    assert ks == list(range(len(ks))) and len(ks) >= 300
+    lost_window = (t_kill - published[ks[-1]]) * 1e-9
+    print(f"kill -9: recovered {len(ks)} messages, the last published {1e3 * lost_window:.0f} ms before the kill")
+    assert lost_window <= 1.0
+    with AnyReader([fixed]) as ar:          # the recovered file is a normal, complete file
+        assert ar.message_count == len(ks)
+
+
+def test_replay_publishes_clock_from_log_time_with_rate_offset_and_filter(tmp_path):
+    """A recording without /clock: replay derives /clock from log time, so a use_sim_time node's clock reads the
+    recorded time at each message; --rate 2 halves the wall-time spacing, --start-offset skips the beginning,
+    --exclude drops a topic."""
+    from std_msgs.msg import Float64
+    path = tmp_path / "noclock.mcap"
+    T0 = 5_000_000_000_000                   # 5000 s: clearly not wall time
+    with BagWriter(path) as w:
+        w.add_topic("/t/speed", "std_msgs/msg/Float64")
+        w.add_topic("/t/omega_h", "std_msgs/msg/Float64")
+        for k in range(30):
+            w.write("/t/speed", serialize_message(Float64(data=float(k))), T0 + k * 100_000_000)
+            w.write("/t/omega_h", serialize_message(Float64(data=-1.0)), T0 + k * 100_000_000)
+    watch_out = str(tmp_path / "clock.json")
+    watch = start_helper("clockwatch", "--topic", "/t/speed", "--count", "25", "--out", watch_out)
+    try:
+        wait_for(lambda: "clockwatch ready" in watch.output(), DISCOVERY_TIMEOUT, "the use_sim_time node", watch)
+        rep = Proc("-m", "flagbot_sim.ros.replay", str(path), "--rate", "2", "--start-offset", "0.5",
+                   "--exclude", "/t/omega_h", "--wait-for-subscribers", str(DISCOVERY_TIMEOUT))
+        code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + 30)
+        assert code == 0, output
+        code, wout = watch.wait(timeout=20)
+        assert code == 0, wout
+    finally:
+        watch.kill()
+    assert "/t/omega_h" not in output.split("derived /clock")[1] and "/t/speed" in output
+    got = json.loads(Path(watch_out).read_text())
+    ks = [int(d) for d, _, _ in got]
+    assert ks == list(range(5, 30))                          # offset 0.5 s = 5 messages skipped
+    # sim clock at reception - recorded log time: /clock ticks every 10 ms of wall time (20 ms of bag time at rate
+    # 2) just before each message is due; a late delivery (a starved subscriber) can only make it positive
+    err = np.array([sim * 1e-9 - (T0 * 1e-9 + 0.1 * k) for k, (_, sim, _) in zip(ks, got)])
+    assert np.median(np.abs(err)) < 0.03 and err.min() > -0.05, err
+    assert np.median(np.diff([w for _, _, w in got])) * 1e-9 == pytest.approx(0.1 / 2, rel=0.2)   # rate 2
+
+
+def test_replay_of_a_truncated_file_replays_what_is_readable_and_says_what_was_lost(tmp_path):
+    from std_msgs.msg import Float64
+    path = tmp_path / "whole.mcap"
+    with BagWriter(path, flush_interval=0.0) as w:          # a chunk per message: a cut loses only the last
+        w.add_topic("/t/speed", "std_msgs/msg/Float64")
+        for k in range(50):
+            w.write("/t/speed", serialize_message(Float64(data=float(k))), 10**12 + k * 10_000_000)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    readable = scan(cut).messages
+    assert 0 < readable < 50
+    rep = Proc("-m", "flagbot_sim.ros.replay", str(cut), "--rate", "10", "--no-clock")
+    code, output = rep.wait(timeout=30)
+    assert code == 0, output
+    assert "not closed properly" in output and "LOST:" in output and f"recovered {readable} messages" in output
+    assert f"replayed {readable} messages" in output
+
+
+def test_record_all_matches_latched_and_best_effort_publishers(tmp_path):
+    """--all subscribes to topics as they appear with a QoS each publisher can serve: the TRANSIENT_LOCAL message
+    published before the recorder started is recorded, and so is a BEST_EFFORT stream."""
+    out = str(tmp_path / "all.mcap")
+    pub = start_helper("latched", "--topic", "/t/latched", "--topic2", "/t/best_effort")
+    rec = None
+    try:
+        wait_for(lambda: "latched published" in pub.output(), DISCOVERY_TIMEOUT, "the latched publisher", pub)
+        rec = record(out, "--all", "--exclude", "^/rosout$", "--exclude", "^/parameter_events$")
+
+        def both():
+            if not os.path.exists(out):
+                return False
+            with BagReader(out) as r:
+                t = r.topics
+                return "/t/latched" in t and t["/t/latched"].count >= 1 and t.get("/t/best_effort") and \
+                    t["/t/best_effort"].count >= 10
+        wait_for(both, DISCOVERY_TIMEOUT, "the latched and best-effort topics", rec)
+        code, output = rec.stop()
+        assert code == 0, output
+    finally:
+        pub.stop()
+        if rec is not None:
+            rec.kill()
+    with BagReader(out) as r:
+        assert set(r.topics) == {"/t/latched", "/t/best_effort"}
+        assert [v for _, _, v in r.decoded("/t/latched")][0].data == 42.0
+        assert r.topics["/t/latched"].offered_qos[0].durability == "transient_local"
+        assert r.topics["/t/best_effort"].offered_qos[0].reliability == "best_effort"
+
+
+def test_recorder_inside_an_existing_node(tmp_path):
+    """What the sim_node's `record` parameter uses: Recorder(node, path, topics, metadata) on the node itself."""
+    out = str(tmp_path / "self.mcap")
+    p = start_helper("selfrecord", "--ns", "/t", "--count", "10", "--out", out)
+    code, output = p.wait(timeout=DISCOVERY_TIMEOUT + 20)
+    assert code == 0, output
+    assert_closed_with_summary(out, 10)
+    with BagReader(out) as r:
+        assert [m.data for _, _, m in r.decoded("/t/speed")] == [float(k) for k in range(10)]
+        assert r.run_metadata().parameters == {"dt": 0.01}

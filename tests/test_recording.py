@@ -1,0 +1,116 @@
+"""Recording from sim_node, re-simulation of recordings, and the sample recordings shipped in bags/."""
+import tomllib
+from pathlib import Path
+
+import pytest
+import rclpy
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool
+
+from flagbot_sim.bag import BagReader
+from flagbot_sim.bagtools import summarize
+from flagbot_sim.resim import resimulate
+from flagbot_sim.scene import load_scene
+
+from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, call, set_params, spin_until
+
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+SAMPLES = sorted(BAGS.glob("*.mcap"))
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    node = Node("recording_test")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def run_recording_node(ros, tmp_path, record_at_launch=True):
+    out = tmp_path / "run.mcap"
+    args = ["--ros-args", "-p", "scene:=design2", "-p", "n_flagella:=3",
+            "-p", 'scene_overrides:=["flagellum.length=0.05"]', "-p", "real_time_factor:=0.0",
+            "-p", "start_paused:=true", "-p", "initial_omega:=6.0"]
+    if record_at_launch:
+        args += ["-p", f"record:={out}"]
+    proc = NodeProcess("flagbot_sim.ros.sim_node", *args)
+    clock = []
+    ros.create_subscription(Clock, "/clock", lambda m: clock.append(m.clock.sec + 1e-9 * m.clock.nanosec), 10)
+    spin_until(ros, lambda: clock, DISCOVERY_TIMEOUT, "/clock")
+    if not record_at_launch:
+        (res,) = set_params(ros, "sim_node", record=str(out))
+        assert res.successful, res.reason
+    cmd = ros.create_publisher(Float64, "cmd_omega", 10)
+    # two subscriptions: sim_node's command input and its recorder (which subscribes once it sees a publisher)
+    spin_until(ros, lambda: cmd.get_subscription_count() >= 2, DISCOVERY_TIMEOUT, "cmd_omega input and recorder")
+    call(ros, ros.create_client(SetBool, "pause"), SetBool.Request(data=False))
+    spin_until(ros, lambda: clock and clock[-1] > 1.0, 60, "1 s of simulation")
+    cmd.publish(Float64(data=9.0))                        # a command change during the recording
+    spin_until(ros, lambda: clock[-1] > 2.5, 60, "2.5 s of simulation")
+    return proc, out
+
+
+@pytest.mark.parametrize("at_launch", [True, False])
+def test_sim_node_records_a_run_that_re_simulates_exactly(ros, tmp_path, at_launch):
+    proc, out = run_recording_node(ros, tmp_path, record_at_launch=at_launch)
+    code, log = proc.stop()
+    assert code == 0 and "Traceback" not in log and "rosout" not in log, log
+    with BagReader(out) as r:
+        assert r.report.ok, r.report.describe_loss()
+        topics = set(r.topics)
+        meta = r.run_metadata()
+    assert {"/clock", "/joint_states", "/head_pose", "/odom", "/speed", "/cmd_omega"} <= topics
+    # the metadata alone rebuilds the node's scene: file + overrides + n_flagella
+    expected = load_scene("design2", ["flagellum.length=0.05", "robot.n_flagella=3"])
+    assert tomllib.loads(meta.scene_toml) == tomllib.loads(expected.to_toml())
+    assert meta.parameters["n_flagella"] == 3 and meta.parameters["initial_omega"] == 6.0
+    res = resimulate(out)
+    assert [w for _, w in res.commands][-1] == 9.0 and len(res.commands) >= 2
+    assert res.max_position_error == 0.0 and res.max_omega_h_error == 0.0 and res.max_omega_t_error == 0.0
+    assert res.samples > 10 and not res.notes
+
+
+def test_record_parameter_refuses_an_existing_file(ros, tmp_path):
+    existing = tmp_path / "taken.mcap"
+    existing.write_bytes(b"keep me")
+    proc = NodeProcess("flagbot_sim.ros.sim_node", "--ros-args", "-p", "scene:=design2", "-p", "start_paused:=true")
+    try:
+        spin_until(ros, lambda: "sim_node" in ros.get_node_names(), DISCOVERY_TIMEOUT, "sim_node")
+        (res,) = set_params(ros, "sim_node", record=str(existing))
+        assert not res.successful and "taken.mcap" in res.reason
+        assert existing.read_bytes() == b"keep me"
+    finally:
+        code, log = proc.stop()
+    assert code == 0, log
+
+
+@pytest.mark.skipif(not SAMPLES, reason="no sample recordings in bags/ (bags/make_samples.sh makes them)")
+@pytest.mark.parametrize("bag", SAMPLES, ids=lambda p: p.name)
+def test_sample_recordings(bag):
+    from mcap_ros2.reader import read_ros2_messages
+    from rosbags.highlevel import AnyReader
+    assert bag.stat().st_size < 5 * 2 ** 20
+    assert bag.name in (BAGS / "README.md").read_text(), "every sample is described in bags/README.md"
+    with BagReader(bag) as r:
+        assert r.report.ok
+        count = r.report.messages
+    # two independent readers see the same messages
+    assert sum(1 for _ in read_ros2_messages(str(bag))) == count
+    with AnyReader([bag]) as ar:
+        n = 0
+        for conn, _, raw in ar.messages():
+            ar.deserialize(raw, conn.msgtype)
+            n += 1
+    assert n == count
+    # the recording re-simulates exactly, and its steps are steady with omega_h + omega_t = omega_T
+    res = resimulate(bag)
+    assert max(res.max_position_error, res.max_omega_h_error, res.max_omega_t_error) == 0.0
+    s = summarize(bag)
+    steps = [st for st in s["steps"] if st["omega_T"] != 0.0]
+    assert len(steps) >= 2
+    for st in steps:
+        assert st["omega_h"] + st["omega_t"] == pytest.approx(st["omega_T"], rel=0.01)
+        assert st["v"] > 0
