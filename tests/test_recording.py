@@ -18,6 +18,10 @@ from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, call, set_params, spin_u
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 SAMPLES = sorted(BAGS.glob("*.mcap"))
+#: re-simulation tolerance stated in msg_docs/record_replay.md: Newton's tolerance, seen through the
+#: per-step rates (a displacement error divided by dt)
+RESIM_POSITION_TOL = 1e-8      # m
+RESIM_RATE_TOL = 1e-5          # rad/s
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +36,7 @@ def ros():
 def run_recording_node(ros, tmp_path, record_at_launch=True):
     out = tmp_path / "run.mcap"
     args = ["--ros-args", "-p", "scene:=design2", "-p", "n_flagella:=3",
-            "-p", 'scene_overrides:=["flagellum.length=0.05"]', "-p", "real_time_factor:=0.0",
+            "-p", 'scene_overrides:=["flagellum.length=0.05"]', "-p", "real_time_factor:=4.0",
             "-p", "start_paused:=true", "-p", "initial_omega:=6.0"]
     if record_at_launch:
         args += ["-p", f"record:={out}"]
@@ -105,9 +109,12 @@ def test_sample_recordings(bag):
             ar.deserialize(raw, conn.msgtype)
             n += 1
     assert n == count
-    # the recording re-simulates exactly, and its steps are steady with omega_h + omega_t = omega_T
+    # the recording re-simulates to solver tolerance (exactly with the version that recorded it; a later solver
+    # stops its Newton iterations at other points inside the tolerance), and its steps are steady with
+    # omega_h + omega_t = omega_T
     res = resimulate(bag)
-    assert max(res.max_position_error, res.max_omega_h_error, res.max_omega_t_error) == 0.0
+    assert res.max_position_error <= RESIM_POSITION_TOL
+    assert max(res.max_omega_h_error, res.max_omega_t_error) <= RESIM_RATE_TOL
     s = summarize(bag)
     steps = [st for st in s["steps"] if st["omega_T"] != 0.0]
     assert len(steps) >= 2

@@ -30,11 +30,14 @@ class State:
     v: np.ndarray
     frames: EdgeFrames
     extras: dict = field(default_factory=dict)
-    a: np.ndarray | None = None      # last step's velocity change / dt, for the Newton predictor only
+    # for the Newton predictor only: the sizes of the last two steps and the velocity of the one before
+    h: float = 0.0
+    h_prev: float = 0.0
+    v_prev: np.ndarray | None = None
 
     def copy(self) -> "State":
-        return State(self.t, self.q.copy(), self.v.copy(), self.frames.copy(), copy.deepcopy(self.extras),
-                     None if self.a is None else self.a.copy())
+        return State(self.t, self.q.copy(), self.v.copy(), self.frames.copy(), copy.deepcopy(self.extras), self.h,
+                     self.h_prev, None if self.v_prev is None else self.v_prev.copy())
 
 
 def build_effects(scene: Scene, net: RodNetwork, elastic: ElasticModel) -> list[Effect]:

@@ -1,0 +1,11 @@
+#!/usr/bin/env python3
+"""Accuracy-vs-time study; the same as `python -m flagbot_sim bench accuracy` (flagbot_sim/bench/accuracy.py)."""
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from flagbot_sim.bench.accuracy import main  # noqa: E402
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,173 @@
+"""Throughput: steps/s, real-time factor and where the time goes; cost per step vs number of DOF.
+
+The per-phase breakdown wraps the model's methods with timers for the duration of the benchmark only (the
+normal hot path carries no instrumentation): frames (edge frames and reference twist), elastic (stretch and
+bend-twist forces/Jacobian), effects (RFT, head, inertia, ...), assembly (scatter of effect values into the
+residual and the CSC data), linear solve (factorisation and solves), stepper (Newton bookkeeping, predictor,
+line search, commit) and observe (spin angles, speed, history).
+"""
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from ..physics import Simulation
+from ..scene import load_scene
+
+CASES = [("design1", 2), ("design1", 3), ("design1", 5), ("design2", 2), ("design2", 3), ("design2", 5)]
+PHASES = ("frames", "elastic", "effects", "assembly", "linear solve", "stepper", "observe")
+
+
+class PhaseTimer:
+    def __init__(self):
+        self.t = defaultdict(float)
+
+    def wrap(self, obj, name: str, phase: str) -> None:
+        f = getattr(obj, name)
+        t = self.t
+
+        def timed(*a, **k):
+            t0 = time.perf_counter()
+            try:
+                return f(*a, **k)
+            finally:
+                t[phase] += time.perf_counter() - t0
+        setattr(obj, name, timed)
+
+
+def instrument(sim: Simulation) -> PhaseTimer:
+    pt = PhaseTimer()
+    m, st = sim.model, sim.stepper
+    pt.wrap(m, "context", "frames")
+    pt.wrap(m.elastic, "accumulate", "elastic")
+    for e in m.effects:
+        pt.wrap(e, "force", "effects")
+        pt.wrap(e, "force_and_jacobian", "effects")
+    pt.wrap(m, "residual", "_residual_total")
+    pt.wrap(m, "residual_and_jacobian", "_jacobian_total")
+    pt.wrap(st.solver, "factor", "linear solve")
+    pt.wrap(st.solver, "solve", "linear solve")
+    pt.wrap(st, "step", "_step_total")
+    pt.wrap(sim.observer, "record", "observe")
+    return pt
+
+
+def breakdown(pt: PhaseTimer, steps: int) -> dict:
+    """Microseconds per step in each phase."""
+    t = pt.t
+    evals = t["_residual_total"] + t["_jacobian_total"]
+    # residual_and_jacobian / residual include context, elastic and effects; what is left is assembly
+    assembly = evals - t["frames"] - t["elastic"] - t["effects"]
+    stepper = t["_step_total"] - evals - t["linear solve"]
+    out = {"frames": t["frames"], "elastic": t["elastic"], "effects": t["effects"], "assembly": assembly,
+           "linear solve": t["linear solve"], "stepper": stepper, "observe": t["observe"]}
+    return {k: 1e6 * v / steps for k, v in out.items()}
+
+
+def measure(scene: str, n: int, warmup: float = 3.0, span: float = 5.0, extra=()) -> dict:
+    sim = Simulation(load_scene(scene, [f"robot.n_flagella={n}", *extra]))
+    sim.run(warmup)
+    steps0, it0 = sim.steps, sim.newton_iterations
+    t0 = time.perf_counter()
+    sim.run(span)
+    wall = time.perf_counter() - t0
+    steps = sim.steps - steps0
+    newton = (sim.newton_iterations - it0) / steps if steps else math.nan
+    # the same span again, instrumented, for the breakdown (timers cost a little; the figures above do not pay it)
+    pt = instrument(sim)
+    s1 = sim.steps
+    sim.run(span)
+    return {"steps_per_s": steps / wall, "rtf": span / wall, "newton_per_step": newton, "ndof": sim.model.ndof,
+            "us_per_step": 1e6 * wall / steps, "phases": breakdown(pt, sim.steps - s1),
+            "solver": sim.stepper.solver.name}
+
+
+def scaling(edges_per_flagellum=(5, 10, 20, 40, 80, 160, 330), n: int = 3, steps: int = 40, warmup_steps: int = 20):
+    """Cost per step and per Newton iteration vs DOF (design 1, n = 3, dt = 1e-2, more and more edges)."""
+    rows = []
+    for N in edges_per_flagellum:
+        edge = 0.111 / N
+        sim = Simulation(load_scene("design1", [f"robot.n_flagella={n}", f"flagellum.edge_length={edge}"]))
+        for _ in range(warmup_steps):
+            sim.step()
+        it0 = sim.newton_iterations
+        best = math.inf
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            s = time.perf_counter()
+            sim.step()
+            best = min(best, time.perf_counter() - s)
+        wall = time.perf_counter() - t0
+        its = sim.newton_iterations - it0
+        rows.append({"edges_per_flagellum": N, "ndof": sim.model.ndof, "us_per_step": 1e6 * wall / steps,
+                     "us_per_newton": 1e6 * wall / max(its, 1), "newton_per_step": its / steps,
+                     "best_us_per_step": 1e6 * best})
+    x = np.log([r["ndof"] for r in rows])
+    fit_step = float(np.polyfit(x, np.log([r["us_per_step"] for r in rows]), 1)[0])
+    fit_newton = float(np.polyfit(x, np.log([r["us_per_newton"] for r in rows]), 1)[0])
+    return rows, fit_step, fit_newton
+
+
+def format_throughput(results: list[tuple]) -> str:
+    lines = ["dt = 1e-2 s, 4.11 mm edges, omega_T = 100 rpm (median of the repeats; min..max)",
+             f"{'case':12s} {'DOF':>5s} {'steps/s':>20s} {'real-time x':>20s} {'Newton/step':>11s} "
+             + " ".join(f"{p:>12s}" for p in PHASES) + "   (us per step)"]
+    for (scene, n), rs in results:
+        sps = sorted(r["steps_per_s"] for r in rs)
+        rtf = sorted(r["rtf"] for r in rs)
+        ph = {p: statistics.median(r["phases"][p] for r in rs) for p in PHASES}
+        lines.append(f"{scene} n={n:<3d} {rs[0]['ndof']:5d} {statistics.median(sps):8.0f} ({sps[0]:5.0f}..{sps[-1]:5.0f})"
+                     f" {statistics.median(rtf):8.2f} ({rtf[0]:5.1f}..{rtf[-1]:5.1f}) "
+                     f"{statistics.median(r['newton_per_step'] for r in rs):11.2f} "
+                     + " ".join(f"{ph[p]:12.0f}" for p in PHASES))
+    return "\n".join(lines)
+
+
+def format_scaling(rows, fit_step, fit_newton) -> str:
+    lines = ["cost vs size (design 1, n = 3, dt = 1e-2 s; more edges per flagellum)",
+             f"{'edges/flag':>10s} {'DOF':>6s} {'us/step':>10s} {'us/Newton it':>13s} {'Newton/step':>11s}"]
+    for r in rows:
+        lines.append(f"{r['edges_per_flagellum']:10d} {r['ndof']:6d} {r['us_per_step']:10.0f} {r['us_per_newton']:13.0f} "
+                     f"{r['newton_per_step']:11.2f}")
+    lines.append(f"fitted growth exponent: cost per step ~ DOF^{fit_step:.2f}, cost per Newton iteration ~ "
+                 f"DOF^{fit_newton:.2f}")
+    return "\n".join(lines)
+
+
+def add_arguments(ap) -> None:
+    ap.add_argument("--repeat", type=int, default=3, help="repeats of each throughput case (median reported)")
+    ap.add_argument("--warmup", type=float, default=3.0, help="simulated seconds before timing (start-up transient)")
+    ap.add_argument("--measure", type=float, default=5.0, help="simulated seconds timed")
+    ap.add_argument("--no-scaling", action="store_true", help="skip the cost-vs-DOF study")
+    ap.add_argument("--no-pyelastica", action="store_true", help="skip the PyElastica comparison")
+    ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
+
+
+def run(args) -> int:
+    cases = CASES[:2] + CASES[3:5] if args.quick else CASES
+    repeat = 1 if args.quick else args.repeat
+    results = []
+    for scene, n in cases:
+        results.append(((scene, n), [measure(scene, n, args.warmup, args.measure) for _ in range(repeat)]))
+        print(f"  measured {scene} n={n}", flush=True)
+    print(format_throughput(results), flush=True)
+    if not args.no_scaling:
+        rows, fs, fn = scaling(edges_per_flagellum=(5, 20, 80, 330) if args.quick else
+                               (5, 10, 20, 40, 80, 160, 330))
+        print(format_scaling(rows, fs, fn), flush=True)
+    if not args.no_pyelastica:
+        from . import pyelastica
+        pyelastica.run_comparison(quick=args.quick)
+    return 0
+
+
+def main(argv=None) -> int:
+    import argparse
+    ap = argparse.ArgumentParser(prog="bench speed", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(ap)
+    return run(ap.parse_args(argv))
