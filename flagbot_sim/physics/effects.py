@@ -272,6 +272,8 @@ class Clamp(Effect):
         self.x0 = net.nodes[self.nodes]
         # material director m1 of the driven edges at rest (theta = 0)
         self.m1_0 = elastic.frames0.d1[self.edges].copy()
+        self._edge_local = np.searchsorted(self.nodes, net.edges[self.edges])   # driven edges in self.nodes
+        self._theta_dofs = net.edge_dof(self.edges)
         #: DOFs the stepper holds at the clamp's values (their residual rows become identity rows)
         self.prescribed_dofs = np.concatenate([net.node_dofs(self.nodes).ravel(), net.edge_dof(self.edges)])
         self._trial = None
@@ -289,13 +291,16 @@ class Clamp(Effect):
         R = self.rotation(phi)
         x = self.x0 @ R.T
         # twist angles that make the material frame the rotated rest frame, given the transported reference frame
-        e = np.searchsorted(self.nodes, self.net.edges[self.edges])
+        e = self._edge_local
         t, _ = normalize(x[e[:, 1]] - x[e[:, 0]])
         fr = state.frames
-        d1_new = parallel_transport(fr.d1[self.edges], fr.t[self.edges], t)
-        theta = signed_angle(d1_new, self.m1_0 @ R.T, t)
-        theta_old = state.q[self.net.edge_dof(self.edges)]
-        theta = unwrap_to(theta, theta_old)
+        theta_old = state.q[self._theta_dofs]
+        if kernels.AVAILABLE:
+            theta = np.empty(len(self.edges))
+            kernels.clamp_twist(fr.d1[self.edges], fr.t[self.edges], t, self.m1_0 @ R.T, theta_old, theta)
+        else:
+            d1_new = parallel_transport(fr.d1[self.edges], fr.t[self.edges], t)
+            theta = unwrap_to(signed_angle(d1_new, self.m1_0 @ R.T, t), theta_old)
         self._trial = (phi, np.concatenate([x.ravel(), theta]))
 
     def prescribed(self):

@@ -96,6 +96,13 @@ class EdgeFrames:
         self.d2 = d2.copy()
         self.ref_twist = ref_twist.copy()
 
+    @classmethod
+    def committed(cls, t, d1, d2, ref_twist) -> "EdgeFrames":
+        """Frames made from freshly computed arrays (taken as they are: the caller gives up ownership)."""
+        fr = cls.__new__(cls)
+        fr.t, fr.d1, fr.d2, fr.ref_twist = t, d1, d2, ref_twist
+        return fr
+
     def copy(self) -> "EdgeFrames":
         other = EdgeFrames.__new__(EdgeFrames)
         other.t, other.d1, other.d2 = self.t.copy(), self.d1.copy(), self.d2.copy()

@@ -489,3 +489,178 @@ def rft(x, x_old, dt, k, a, b, vor, eta_t, eta_p, F, J_k, J_b, want_jacobian):
                     dft = -l * de * (vt * (1.0 if i == m else 0.0) + t[i] * v[m])
                     acc += dft * ((1.0 if m == j else 0.0) - t[m] * t[j])
                 J_b[n, i, j] = acc / chord
+
+
+# ---------------------------------------------------------------------------------------------- predictor
+@njit(cache=True)
+def predict_cylindrical(x, v, v_prev, h1, h2, c1, c0, second, i0, i1, i2, out):
+    """Second-order extrapolation of node positions in cylindrical coordinates about the robot axis (see
+    Stepper.predict). ``out`` holds the Cartesian prediction on entry (kept for nodes on the axis)."""
+    if i0 != i2:
+        a0, a1, a2 = x[i2, 0] - x[i0, 0], x[i2, 1] - x[i0, 1], x[i2, 2] - x[i0, 2]
+        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        a0, a1, a2 = a0 / na, a1 / na, a2 / na
+    else:
+        a0, a1, a2 = 1.0, 0.0, 0.0
+    cn0, cn1, cn2 = out[i1, 0], out[i1, 1], out[i1, 2]          # the centre, predicted on the axis
+    # the centre at the three times
+    C = np.empty((3, 3))
+    for i in range(3):
+        C[0, i] = x[i1, i]
+        C[1, i] = C[0, i] - h1 * v[i1, i]
+        C[2, i] = C[1, i] - h2 * v_prev[i1, i] if second else C[1, i]
+    P = np.empty((3, 3))
+    S = np.empty(3)
+    R = np.empty((3, 3))
+    rn = np.empty(3)
+    for k in range(x.shape[0]):
+        for i in range(3):
+            P[0, i] = x[k, i]
+            P[1, i] = P[0, i] - h1 * v[k, i]
+            P[2, i] = P[1, i] - h2 * v_prev[k, i] if second else P[1, i]
+        ok = True
+        for j in range(3):
+            p0, p1, p2 = P[j, 0] - C[j, 0], P[j, 1] - C[j, 1], P[j, 2] - C[j, 2]
+            s = p0 * a0 + p1 * a1 + p2 * a2
+            S[j] = s
+            R[j, 0], R[j, 1], R[j, 2] = p0 - s * a0, p1 - s * a1, p2 - s * a2
+            rn[j] = math.sqrt(R[j, 0] ** 2 + R[j, 1] ** 2 + R[j, 2] ** 2)
+            if rn[j] <= 1e-9:
+                ok = False
+        if not ok:
+            continue
+        # turn from configuration j+1 to j about the axis
+        x0, x1, x2 = _cross(R[1, 0], R[1, 1], R[1, 2], R[0, 0], R[0, 1], R[0, 2])
+        dphi = math.atan2(x0 * a0 + x1 * a1 + x2 * a2, R[1, 0] * R[0, 0] + R[1, 1] * R[0, 1] + R[1, 2] * R[0, 2]) / h1
+        ds = (S[0] - S[1]) / h1
+        dr = (rn[0] - rn[1]) / h1
+        if second:
+            y0, y1, y2 = _cross(R[2, 0], R[2, 1], R[2, 2], R[1, 0], R[1, 1], R[1, 2])
+            dphi0 = math.atan2(y0 * a0 + y1 * a1 + y2 * a2,
+                               R[2, 0] * R[1, 0] + R[2, 1] * R[1, 1] + R[2, 2] * R[1, 2]) / h2
+            ds0 = (S[1] - S[2]) / h2
+            dr0 = (rn[1] - rn[2]) / h2
+        else:
+            dphi0 = ds0 = dr0 = 0.0
+        s_new = S[0] + c1 * ds + c0 * ds0
+        r_new = rn[0] + c1 * dr + c0 * dr0
+        phi = c1 * dphi + c0 * dphi0
+        u0, u1, u2 = R[0, 0] / rn[0], R[0, 1] / rn[0], R[0, 2] / rn[0]
+        w0, w1, w2 = _cross(a0, a1, a2, u0, u1, u2)
+        cp, sp = math.cos(phi), math.sin(phi)
+        out[k, 0] = cn0 + s_new * a0 + r_new * (cp * u0 + sp * w0)
+        out[k, 1] = cn1 + s_new * a1 + r_new * (cp * u1 + sp * w1)
+        out[k, 2] = cn2 + s_new * a2 + r_new * (cp * u2 + sp * w2)
+
+
+# ---------------------------------------------------------------------------------------------- arrow solve
+@njit(cache=True)
+def getrf(A, piv):
+    """Dense LU with partial pivoting in place (row interchanges in piv). Returns 0, or j + 1 if singular."""
+    n = A.shape[0]
+    for j in range(n):
+        p = j
+        best = abs(A[j, j])
+        for i in range(j + 1, n):
+            if abs(A[i, j]) > best:
+                best, p = abs(A[i, j]), i
+        piv[j] = p
+        if best == 0.0:
+            return j + 1
+        if p != j:
+            for c in range(n):
+                tmp = A[j, c]
+                A[j, c] = A[p, c]
+                A[p, c] = tmp
+        d = A[j, j]
+        for i in range(j + 1, n):
+            A[i, j] /= d
+            l = A[i, j]
+            if l != 0.0:
+                for c in range(j + 1, n):
+                    A[i, c] -= l * A[j, c]
+    return 0
+
+
+@njit(cache=True)
+def getrs(A, piv, b):
+    n = A.shape[0]
+    for j in range(n):
+        p = piv[j]
+        if p != j:
+            tmp = b[j]
+            b[j] = b[p]
+            b[p] = tmp
+    for i in range(n):
+        acc = b[i]
+        for k in range(i):
+            acc -= A[i, k] * b[k]
+        b[i] = acc
+    for i in range(n - 1, -1, -1):
+        acc = b[i]
+        for k in range(i + 1, n):
+            acc -= A[i, k] * b[k]
+        b[i] = acc / A[i, i]
+
+
+@njit(cache=True)
+def arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv_all,
+                ipiv_off, Y_all, Y_off, core_piv, chain_dofs, chain_ptr, core_dofs, b, x):
+    """Solve with the factors of arrow_factor (+ getrf of the core Schur complement, in buf)."""
+    rhs = np.empty(nc)
+    for k in range(nc):
+        rhs[k] = b[core_dofs[k]]
+    zmax = 0
+    for i in range(ab_off.shape[0]):
+        zmax = max(zmax, chain_ptr[i + 1] - chain_ptr[i])
+    z = np.empty((zmax, 1))
+    for i in range(ab_off.shape[0]):
+        ldab, m = ab_rows[i], ab_cols[i]
+        ab = buf[ab_off[i]:ab_off[i] + ldab * m].reshape((m, ldab)).T
+        ipiv = ipiv_all[ipiv_off[i]:ipiv_off[i] + m]
+        zi = z[:m]
+        for k in range(m):
+            zi[k, 0] = b[chain_dofs[chain_ptr[i] + k]]
+        gbtrs(ab, kl[i], ku[i], ipiv, zi)
+        ncr = cr_ptr[i + 1] - cr_ptr[i]
+        C = buf[C_off[i]:C_off[i] + ncr * m].reshape((ncr, m))
+        for a in range(ncr):
+            acc = 0.0
+            for k in range(m):
+                acc += C[a, k] * zi[k, 0]
+            rhs[cr[cr_ptr[i] + a]] -= acc
+        for k in range(m):
+            x[chain_dofs[chain_ptr[i] + k]] = zi[k, 0]
+    S = buf[D_off:D_off + nc * nc].reshape((nc, nc))
+    getrs(S, core_piv, rhs)
+    for k in range(nc):
+        x[core_dofs[k]] = rhs[k]
+    for i in range(ab_off.shape[0]):
+        m = ab_cols[i]
+        ncc = cc_ptr[i + 1] - cc_ptr[i]
+        Y = Y_all[Y_off[i]:Y_off[i] + m * ncc].reshape((m, ncc))
+        for k in range(m):
+            acc = 0.0
+            for c in range(ncc):
+                acc += Y[k, c] * rhs[cc[cc_ptr[i] + c]]
+            x[chain_dofs[chain_ptr[i] + k]] -= acc
+
+
+# ---------------------------------------------------------------------------------------------- clamp
+@njit(cache=True)
+def clamp_twist(d1c, tc, t_new, m_target, theta_old, out):
+    """Twist angles giving material director m_target on edges whose reference frames are carried from (d1c, tc)
+    to t_new by time-parallel transport; each continuous with theta_old."""
+    for k in range(t_new.shape[0]):
+        t0, t1, t2 = t_new[k, 0], t_new[k, 1], t_new[k, 2]
+        c0, c1, c2 = tc[k, 0], tc[k, 1], tc[k, 2]
+        b0, b1, b2 = _cross(c0, c1, c2, t0, t1, t2)
+        c = c0 * t0 + c1 * t1 + c2 * t2
+        u0, u1, u2 = d1c[k, 0], d1c[k, 1], d1c[k, 2]
+        w0, w1, w2 = _cross(b0, b1, b2, u0, u1, u2)
+        bu = (b0 * u0 + b1 * u1 + b2 * u2) / (1.0 + c)
+        p0, p1, p2 = c * u0 + w0 + b0 * bu, c * u1 + w1 + b1 * bu, c * u2 + w2 + b2 * bu
+        m0, m1, m2 = m_target[k, 0], m_target[k, 1], m_target[k, 2]
+        x0, x1, x2 = _cross(p0, p1, p2, m0, m1, m2)
+        ang = math.atan2(x0 * t0 + x1 * t1 + x2 * t2, p0 * m0 + p1 * m1 + p2 * m2)
+        out[k] = ang + 2.0 * math.pi * np.round((theta_old[k] - ang) / (2.0 * math.pi))

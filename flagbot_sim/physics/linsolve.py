@@ -123,6 +123,8 @@ class ArrowSolver:
             cr=np.concatenate(self.couple_rows).astype(np.int64))
         self._ipiv_off = np.cumsum([0] + [len(c) for c in chains]).astype(np.int64)
         self._Y_off = np.cumsum([0] + [len(c) * len(cc) for c, cc in zip(chains, self.couple_cols)]).astype(np.int64)
+        self._chain_dofs = np.concatenate(self.chains).astype(np.int64)
+        self._chain_ptr = np.cumsum([0] + [len(c) for c in self.chains]).astype(np.int64)
         self.compiled = kernels.AVAILABLE
 
     def factor(self, data: np.ndarray) -> None:
@@ -142,23 +144,19 @@ class ArrowSolver:
         if bad:
             raise SingularJacobian(f"flagellum block {bad - 1} is singular")
         nc = len(self.core)
-        S = buf[self._D_off:self._D_off + nc * nc].reshape(nc, nc)
-        try:
-            S_lu = sla.lu_factor(S, check_finite=False)
-        except (ValueError, sla.LinAlgError) as exc:
-            raise SingularJacobian(str(exc)) from None
-        if np.any(np.diag(S_lu[0]) == 0.0):
+        core_piv = np.empty(nc, np.int64)
+        if kernels.getrf(buf[self._D_off:self._D_off + nc * nc].reshape(nc, nc), core_piv):
             raise SingularJacobian("core Schur complement is singular")
-        factors = []
-        for i, c in enumerate(self.chains):
-            m = len(c)
-            ldab = self._ab_shape[i][0]
-            ab = buf[self._ab_off[i]:self._ab_off[i] + ldab * m].reshape((m, ldab)).T
-            cc, cr = self.couple_cols[i], self.couple_rows[i]
-            C = buf[self._C_off[i]:self._C_off[i] + len(cr) * m].reshape(len(cr), m)
-            Yi = Y[self._Y_off[i]:self._Y_off[i + 1]].reshape(m, len(cc))
-            factors.append((ab, ipiv[self._ipiv_off[i]:self._ipiv_off[i + 1]], C, Yi))
-        self._factors = (factors, S_lu)
+        self._compiled_factors = (buf, ipiv, Y, core_piv)
+
+    def _solve_compiled(self, b: np.ndarray) -> np.ndarray:
+        buf, ipiv, Y, core_piv = self._compiled_factors
+        k = self._k
+        x = np.empty(self.ndof)
+        kernels.arrow_solve(buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
+                            k["cc"], k["cr_ptr"], k["cr"], self._D_off, len(self.core), ipiv, self._ipiv_off, Y,
+                            self._Y_off, core_piv, self._chain_dofs, self._chain_ptr, self.core, b, x)
+        return x
 
     def _factor_lapack(self, data: np.ndarray) -> None:
         buf = np.zeros(self.size)
@@ -187,18 +185,15 @@ class ArrowSolver:
         self._factors = (factors, S_lu)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
+        if self.compiled:
+            return self._solve_compiled(b)
         factors, S_lu = self._factors
         x = np.empty(self.ndof)
         rhs_core = b[self.core].copy()
         zs = []
         for i, c in enumerate(self.chains):
             lu, piv, C, Y = factors[i]
-            if self.compiled:
-                z = b[c].reshape(-1, 1).copy()
-                kernels.gbtrs(lu, self.kl[i], self.ku[i], piv, z)
-                z = z[:, 0]
-            else:
-                z, _ = lapack.dgbtrs(lu, self.kl[i], self.ku[i], b[c], piv)
+            z, _ = lapack.dgbtrs(lu, self.kl[i], self.ku[i], b[c], piv)
             rhs_core[self.couple_rows[i]] -= C @ z
             zs.append(z)
         xc = sla.lu_solve(S_lu, rhs_core, check_finite=False)

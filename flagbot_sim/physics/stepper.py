@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .frames import cross
+from . import kernels
+from .frames import EdgeFrames
 from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State
 
@@ -160,43 +161,13 @@ class Stepper:
         c1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)      # coefficient of d1
         c0 = -h * (h + h1) / (h1 + h2) if second else 0.0             # coefficient of d0
         q = state.q + c1 * state.v + (c0 * state.v_prev if second else 0.0)   # twist angles, nodes on the axis
-        net, ob = self.model.net, self._axis_nodes
-        N = net.n_nodes
+        N = self.model.net.n_nodes
         x = state.q[: 3 * N].reshape(N, 3)
         v = state.v[: 3 * N].reshape(N, 3)
-        x1 = x - h1 * v                                                # configuration one step back
-        x2 = x1 - h2 * state.v_prev[: 3 * N].reshape(N, 3) if second else x1
-        a = x[ob[2]] - x[ob[0]] if ob[0] != ob[2] else np.array([1.0, 0.0, 0.0])
-        a = a / np.linalg.norm(a)
-
-        def cyl(xx):
-            p = xx - xx[ob[1]]
-            s = p @ a
-            rho = p - s[:, None] * a
-            return s, rho, np.linalg.norm(rho, axis=1)
-
-        def turn(r_from, r_to):
-            return np.arctan2(cross(r_from, r_to) @ a, np.einsum("ij,ij->i", r_from, r_to))
-
-        s0, rho0, r0 = cyl(x)
-        s1, rho1, r1 = cyl(x1)
-        off_axis = (r0 > 1e-9) & (r1 > 1e-9)
-        ds, dr, dphi = (s0 - s1) / h1, (r0 - r1) / h1, turn(rho1, rho0) / h1
-        if second:
-            s2, rho2, r2 = cyl(x2)
-            off_axis &= r2 > 1e-9
-            ds0, dr0, dphi0 = (s1 - s2) / h2, (r1 - r2) / h2, turn(rho2, rho1) / h2
-        else:
-            ds0 = dr0 = dphi0 = 0.0
-        s_new = s0 + c1 * ds + c0 * ds0
-        r_new = r0 + c1 * dr + c0 * dr0
-        phi = c1 * dphi + c0 * dphi0
-        u = rho0 / np.where(off_axis, r0, 1.0)[:, None]
-        w = cross(a[None, :], u)
-        centre = q[3 * ob[1]: 3 * ob[1] + 3]
-        x_new = centre + s_new[:, None] * a + r_new[:, None] * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * w)
-        xq = q[: 3 * N].reshape(N, 3)
-        xq[off_axis] = x_new[off_axis]
+        vp = state.v_prev[: 3 * N].reshape(N, 3) if second else v
+        i0, i1, i2 = self._axis_nodes
+        kernels.predict_cylindrical(x, v, vp, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2,
+                                    q[: 3 * N].reshape(N, 3))
         return q
 
     def _start(self, state: State, q: np.ndarray, h: float) -> np.ndarray:
@@ -209,8 +180,7 @@ class Stepper:
     def _accept(self, state: State, q: np.ndarray, ctx, h: float, stats: StepStats, iterations: int) -> State:
         stats.newton_iterations += iterations
         v = (q - state.q) / h
-        fr = state.frames.copy()
-        fr.commit(ctx.frames.t, ctx.frames.d1, ctx.frames.d2, ctx.frames.ref_twist)
+        fr = EdgeFrames.committed(ctx.frames.t, ctx.frames.d1, ctx.frames.d2, ctx.frames.ref_twist)
         new = State(state.t + h, q, v, fr, dict(state.extras), h, state.h, state.v)
         for d in self._drivers:
             d.commit(new)
