@@ -48,7 +48,7 @@ def setup() -> None:
         print(f"+ creating {VENV}", flush=True)
         venv.create(VENV, with_pip=True)
     digest = hashlib.sha256(b"".join((ROOT / f).read_bytes() for f in INPUTS)).hexdigest()
-    if STAMP.exists() and STAMP.read_text() == digest:
+    if STAMP.exists() and STAMP.read_text() == digest and (VENV / "bin" / "flagbot").exists():
         return
     sh(PY, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
     sh(PY, "-m", "pip", "install", "--quiet", "-r", "requirements-test.txt")

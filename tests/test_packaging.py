@@ -15,8 +15,11 @@ EXECUTABLES = ["flagbot", "sim_node", "beam_node", "cmd_profile", "record", "rep
 @pytest.fixture(scope="module")
 def prefix(tmp_path_factory):
     prefix = tmp_path_factory.mktemp("install")
+    # --ignore-installed: without it pip first uninstalls the copy in the running environment (the developer's
+    # editable install), as the prefix is not a separate environment to it
     subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
-                    "--prefix", str(prefix), str(ROOT)], check=True, cwd=tmp_path_factory.getbasetemp())
+                    "--ignore-installed", "--prefix", str(prefix), str(ROOT)], check=True,
+                   cwd=tmp_path_factory.getbasetemp())
     return prefix
 
 
