@@ -65,6 +65,19 @@ def add_replay_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="with --resimulate: print the report as JSON")
 
 
+def console_main(prog: str, description: str, add_arguments, run, argv: list[str] | None) -> int:
+    """The ``record`` / ``replay`` console scripts: argparse on the non-ROS arguments, ROS arguments passed on."""
+    from rclpy.utilities import remove_ros_args
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    add_arguments(parser)
+    args = parser.parse_args(remove_ros_args([prog] + argv)[1:])
+    try:
+        return run(args, ros_args=[prog] + argv)
+    except BagError as exc:
+        return _fail(exc)
+
+
 def _fail(exc: Exception) -> int:
     print(f"error: {exc}", file=sys.stderr)
     return 2

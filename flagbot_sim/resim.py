@@ -21,7 +21,7 @@ import numpy as np
 from . import world
 from .bag import BagReader, find_topic
 from .physics import Simulation
-from .scene import SceneError, scene_from_dict
+from .scene import SceneError, node_overrides, scene_from_dict
 
 
 class ResimulationError(ValueError):
@@ -89,9 +89,7 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
         scene = scene_from_dict(tomllib.loads(meta.scene_toml))
         # a standalone recorder stores the scene file as written: apply the node's overrides (idempotent on the
         # resolved scene that sim_node's own recorder stores)
-        extra = [o for o in meta.parameters.get("scene_overrides", []) if str(o).strip()]
-        if meta.parameters.get("n_flagella"):
-            extra.append(f"robot.n_flagella={int(meta.parameters['n_flagella'])}")
+        extra = node_overrides(meta.parameters.get("n_flagella", 0), meta.parameters.get("scene_overrides", []))
         if extra:
             scene = scene.with_overrides(extra)
     except (SceneError, tomllib.TOMLDecodeError) as exc:

@@ -409,6 +409,14 @@ def resolve_scene_path(name_or_path: str | Path) -> Path:
                      f"({', '.join(builtin_scenes())})")
 
 
+def node_overrides(n_flagella: int, scene_overrides) -> list[str]:
+    """Overrides as the ROS nodes take them: ``scene_overrides`` entries, then n_flagella unless it is 0."""
+    extra = [str(o) for o in scene_overrides if str(o).strip()]
+    if n_flagella:
+        extra.append(f"robot.n_flagella={int(n_flagella)}")
+    return extra
+
+
 def load_scene(name_or_path: str | Path, overrides: dict[str, Any] | list[str] | None = None) -> Scene:
     """Load a built-in scene by name (``design1``) or a TOML file by path, then apply overrides."""
     path = resolve_scene_path(name_or_path)

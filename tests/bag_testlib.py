@@ -25,14 +25,9 @@ import array
 import dataclasses
 import json
 import os
-import signal
-import subprocess
-import sys
-import tempfile
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-DISCOVERY_TIMEOUT = 20.0
+from ros_helpers import DISCOVERY_TIMEOUT, ROOT, ChildProcess  # noqa: F401  (tests/ is on sys.path; ROOT re-exported)
 
 # topic (relative to the namespace, or absolute) -> type; the default flagbot topics, one per message type
 TOPIC_TYPES = {
@@ -164,46 +159,7 @@ def stamp_ns(msg) -> int | None:
 # processes
 
 
-def ros_env() -> dict:
-    env = dict(os.environ)
-    assert env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST", "conftest.py keeps DDS on this machine"
-    assert env.get("ROS_DOMAIN_ID")
-    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
-
-class Proc:
-    """A child process with its output in a temp file; stop() signals it and returns (exit code, output)."""
-
-    def __init__(self, *argv: str):
-        self.log = tempfile.TemporaryFile(mode="w+")
-        self.proc = subprocess.Popen([sys.executable, *argv], env=ros_env(), stdout=self.log,
-                                     stderr=subprocess.STDOUT, cwd=ROOT)
-
-    def alive(self) -> bool:
-        return self.proc.poll() is None
-
-    def output(self) -> str:
-        self.log.seek(0)
-        return self.log.read()
-
-    def wait(self, timeout: float = 60.0):
-        try:
-            return self.proc.wait(timeout=timeout), self.output()
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"process did not finish in {timeout} s:\n{self.output()}") from None
-
-    def stop(self, sig=signal.SIGINT, timeout: float = 20.0):
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-        return self.wait(timeout)
-
-    def kill(self):
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+Proc = ChildProcess
 
 
 def record(out: str, *args: str) -> Proc:

@@ -22,16 +22,19 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DISCOVERY_TIMEOUT = 20.0
 
 
-class NodeProcess:
-    """A node started as `python -m MODULE ARGS`; stop() sends SIGINT and returns (code, output)."""
+class ChildProcess:
+    """A child Python process (``python ARGV``) with its output in a temp file.
 
-    def __init__(self, module: str, *args: str):
+    stop() signals it and returns (exit code, output); wait() fails the test if it does not end in time."""
+
+    def __init__(self, *argv: str):
         env = dict(os.environ)
+        assert env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST", "conftest.py keeps DDS on this machine"
+        assert env.get("ROS_DOMAIN_ID")
         env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
-        assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
         self.log = tempfile.TemporaryFile(mode="w+")
-        self.proc = subprocess.Popen([sys.executable, "-m", module, *args], env=env, stdout=self.log,
-                                     stderr=subprocess.STDOUT, cwd=ROOT)
+        self.proc = subprocess.Popen([sys.executable, *argv], env=env, stdout=self.log, stderr=subprocess.STDOUT,
+                                     cwd=ROOT)
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -40,15 +43,30 @@ class NodeProcess:
         self.log.seek(0)
         return self.log.read()
 
-    def stop(self, sig=signal.SIGINT, timeout=20.0):
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
+    def wait(self, timeout: float = 60.0):
         try:
-            code = self.proc.wait(timeout=timeout)
+            return self.proc.wait(timeout=timeout), self.output()
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            code = "killed"
-        return code, self.output()
+            self.proc.wait()
+            raise AssertionError(f"process did not finish in {timeout} s:\n{self.output()}") from None
+
+    def stop(self, sig=signal.SIGINT, timeout: float = 20.0):
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        return self.wait(timeout)
+
+    def kill(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+class NodeProcess(ChildProcess):
+    """A node started as ``python -m MODULE ARGS``."""
+
+    def __init__(self, module: str, *args: str):
+        super().__init__("-m", module, *args)
 
 
 def spin_until(node: Node, predicate, timeout: float, what: str = "condition") -> None:

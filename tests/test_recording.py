@@ -3,8 +3,6 @@ import tomllib
 from pathlib import Path
 
 import pytest
-import rclpy
-from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
@@ -22,15 +20,6 @@ SAMPLES = sorted(BAGS.glob("*.mcap"))
 #: per-step rates (a displacement error divided by dt)
 RESIM_POSITION_TOL = 1e-8      # m
 RESIM_RATE_TOL = 1e-5          # rad/s
-
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    node = Node("recording_test")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
 
 
 def run_recording_node(ros, tmp_path, record_at_launch=True):

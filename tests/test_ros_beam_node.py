@@ -2,8 +2,6 @@
 import math
 
 import pytest
-import rclpy
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 
@@ -13,15 +11,6 @@ from flagbot_sim.scene import load_scene
 from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, set_params, spin_until
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    node = Node("beam_node_test")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
 
 
 @pytest.fixture

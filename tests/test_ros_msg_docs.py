@@ -5,8 +5,6 @@ import re
 from pathlib import Path
 
 import pytest
-import rclpy
-from rclpy.node import Node
 
 from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, describe_all_params, get_params, spin_until
 
@@ -54,15 +52,6 @@ NODES = {
     "beam_node": ["flagbot_sim.ros.beam_node"],
     "cmd_profile": ["flagbot_sim.ros.cmd_profile", "constant", "0"],
 }
-
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    node = Node("msg_docs_test")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
 
 
 @pytest.mark.parametrize("node_name", list(NODES))

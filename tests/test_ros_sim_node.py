@@ -4,7 +4,6 @@ import signal
 
 import numpy as np
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
@@ -79,15 +78,6 @@ def _floats(m):
     elif hasattr(m, "get_fields_and_field_types"):
         for f in m.get_fields_and_field_types():
             yield from _floats(getattr(m, f))
-
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    node = Node("sim_node_test")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
 
 
 @pytest.fixture

@@ -34,6 +34,16 @@ def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
+@njit(cache=True, inline="always")
+def _transport(c0, c1, c2, t0, t1, t2, u0, u1, u2):
+    """Parallel transport of u from unit tangent c to unit tangent t (frames.parallel_transport)."""
+    b0, b1, b2 = _cross(c0, c1, c2, t0, t1, t2)
+    c = c0 * t0 + c1 * t1 + c2 * t2
+    w0, w1, w2 = _cross(b0, b1, b2, u0, u1, u2)
+    bu = (b0 * u0 + b1 * u1 + b2 * u2) / (1.0 + c)
+    return c * u0 + w0 + b0 * bu, c * u1 + w1 + b1 * bu, c * u2 + w2 + b2 * bu
+
+
 @njit(cache=True)
 def frames(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt):
     """Tangents, lengths, time-parallel transported reference frames and continuous reference twist."""
@@ -44,13 +54,7 @@ def frames(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt
         t0, t1, t2 = e0 / le, e1 / le, e2 / le
         length[k] = le
         t[k, 0], t[k, 1], t[k, 2] = t0, t1, t2
-        c0, c1, c2 = tc[k, 0], tc[k, 1], tc[k, 2]
-        b0, b1, b2 = _cross(c0, c1, c2, t0, t1, t2)
-        c = c0 * t0 + c1 * t1 + c2 * t2
-        u0, u1, u2 = d1c[k, 0], d1c[k, 1], d1c[k, 2]
-        w0, w1, w2 = _cross(b0, b1, b2, u0, u1, u2)
-        bu = (b0 * u0 + b1 * u1 + b2 * u2) / (1.0 + c)
-        p0, p1, p2 = c * u0 + w0 + b0 * bu, c * u1 + w1 + b1 * bu, c * u2 + w2 + b2 * bu
+        p0, p1, p2 = _transport(tc[k, 0], tc[k, 1], tc[k, 2], t0, t1, t2, d1c[k, 0], d1c[k, 1], d1c[k, 2])
         pt = p0 * t0 + p1 * t1 + p2 * t2
         p0, p1, p2 = p0 - pt * t0, p1 - pt * t1, p2 - pt * t2
         pn = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
@@ -63,12 +67,7 @@ def frames(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt
         sa, sb = sign[h, 0], sign[h, 1]
         a0, a1, a2 = sa * t[ea, 0], sa * t[ea, 1], sa * t[ea, 2]
         b0, b1, b2 = sb * t[eb, 0], sb * t[eb, 1], sb * t[eb, 2]
-        n0, n1, n2 = _cross(a0, a1, a2, b0, b1, b2)
-        c = a0 * b0 + a1 * b1 + a2 * b2
-        u0, u1, u2 = d1[ea, 0], d1[ea, 1], d1[ea, 2]
-        w0, w1, w2 = _cross(n0, n1, n2, u0, u1, u2)
-        nu = (n0 * u0 + n1 * u1 + n2 * u2) / (1.0 + c)
-        p0, p1, p2 = c * u0 + w0 + n0 * nu, c * u1 + w1 + n1 * nu, c * u2 + w2 + n2 * nu
+        p0, p1, p2 = _transport(a0, a1, a2, b0, b1, b2, d1[ea, 0], d1[ea, 1], d1[ea, 2])
         v0, v1, v2 = d1[eb, 0], d1[eb, 1], d1[eb, 2]
         x0, x1, x2 = _cross(p0, p1, p2, v0, v1, v2)
         ang = math.atan2(x0 * b0 + x1 * b1 + x2 * b2, p0 * v0 + p1 * v1 + p2 * v2)
@@ -653,13 +652,7 @@ def clamp_twist(d1c, tc, t_new, m_target, theta_old, out):
     to t_new by time-parallel transport; each continuous with theta_old."""
     for k in range(t_new.shape[0]):
         t0, t1, t2 = t_new[k, 0], t_new[k, 1], t_new[k, 2]
-        c0, c1, c2 = tc[k, 0], tc[k, 1], tc[k, 2]
-        b0, b1, b2 = _cross(c0, c1, c2, t0, t1, t2)
-        c = c0 * t0 + c1 * t1 + c2 * t2
-        u0, u1, u2 = d1c[k, 0], d1c[k, 1], d1c[k, 2]
-        w0, w1, w2 = _cross(b0, b1, b2, u0, u1, u2)
-        bu = (b0 * u0 + b1 * u1 + b2 * u2) / (1.0 + c)
-        p0, p1, p2 = c * u0 + w0 + b0 * bu, c * u1 + w1 + b1 * bu, c * u2 + w2 + b2 * bu
+        p0, p1, p2 = _transport(tc[k, 0], tc[k, 1], tc[k, 2], t0, t1, t2, d1c[k, 0], d1c[k, 1], d1c[k, 2])
         m0, m1, m2 = m_target[k, 0], m_target[k, 1], m_target[k, 2]
         x0, x1, x2 = _cross(p0, p1, p2, m0, m1, m2)
         ang = math.atan2(x0 * t0 + x1 * t1 + x2 * t2, p0 * m0 + p1 * m1 + p2 * m2)

@@ -19,9 +19,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 
 from ..beam import REGIMES, BeamParams, solve_balance
-from ..scene import SceneError, load_scene
+from ..scene import SceneError
 from . import convert, names
-from .params import ParamSpec, declare, help_text
+from .params import ParamSpec, declare, help_text, node_scene, scene_request
 from .runtime import run_node, wants_help
 
 PARAMS = [
@@ -37,13 +37,6 @@ PARAMS = [
 CACHE_SIZE = 4096
 
 
-def beam_params(scene: str, n_flagella: int, overrides: list[str]) -> BeamParams:
-    extra = [o for o in overrides if o.strip()]
-    if n_flagella:
-        extra.append(f"robot.n_flagella={n_flagella}")
-    return BeamParams.from_scene(load_scene(scene, extra))
-
-
 class BeamNode(Node):
     def __init__(self):
         super().__init__("beam_node")
@@ -51,7 +44,7 @@ class BeamNode(Node):
         p = {s.name: self.get_parameter(s.name).value for s in PARAMS}
         if p["regime"] not in REGIMES:
             raise ValueError(f"regime = {p['regime']!r}: choose one of {', '.join(REGIMES)}")
-        self.params = beam_params(p["scene"], p["n_flagella"], p["scene_overrides"])
+        self.params = BeamParams.from_scene(node_scene(p["scene"], p["n_flagella"], p["scene_overrides"]))
         self.regime = p["regime"]
         self.max_omega = p["max_omega"]
         self._cache: OrderedDict = OrderedDict()
@@ -92,15 +85,11 @@ class BeamNode(Node):
         if "regime" in new and new["regime"] not in REGIMES:
             return SetParametersResult(successful=False,
                                        reason=f"regime = {new['regime']!r}: choose one of {', '.join(REGIMES)}")
-        if {"scene", "n_flagella", "scene_overrides"} & set(new):
-            cur = {k: self.get_parameter(k).value for k in ("scene", "n_flagella", "scene_overrides")}
-            cur.update({k: v for k, v in new.items() if k in cur})
-            try:
-                bp = beam_params(cur["scene"], cur["n_flagella"], list(cur["scene_overrides"]))
-            except (SceneError, ValueError) as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
-        else:
-            bp = None
+        try:
+            scene = scene_request(self, new)
+            bp = None if scene is None else BeamParams.from_scene(scene)
+        except (SceneError, ValueError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
         with self._lock:
             if bp is not None:
                 self.params = bp

@@ -7,6 +7,11 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.parameter import Parameter
 
+from ..scene import Scene, load_scene, node_overrides
+
+#: the parameters that together choose a node's scene
+SCENE_PARAMS = ("scene", "n_flagella", "scene_overrides")
+
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -68,3 +73,20 @@ def help_text(prog: str, summary: str, specs: list[ParamSpec], topics: str = "")
         lines += ["", topics]
     lines += ["", "Full interface (topics, units, frames, QoS, services): msg_docs/ in the package."]
     return "\n".join(lines)
+
+
+def node_scene(scene: str, n_flagella: int, scene_overrides) -> Scene:
+    """The scene a node runs: a scene name or file, its overrides, and n_flagella (0 keeps the scene's)."""
+    return load_scene(scene, node_overrides(n_flagella, scene_overrides))
+
+
+def scene_request(node, new: dict) -> Scene | None:
+    """The scene the node would run once ``new`` parameter values apply, or None if they leave the scene alone.
+
+    Raises SceneError (or ValueError) with the reason when the combination is invalid.
+    """
+    if not set(SCENE_PARAMS) & set(new):
+        return None
+    cur = {k: node.get_parameter(k).value for k in SCENE_PARAMS}
+    cur.update({k: v for k, v in new.items() if k in cur})
+    return node_scene(cur["scene"], cur["n_flagella"], list(cur["scene_overrides"]))

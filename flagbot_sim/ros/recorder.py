@@ -311,19 +311,8 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``record`` console script: ``record [TOPIC ...] [-o out.mcap] [--all] ... [--ros-args ...]``."""
-    from rclpy.utilities import remove_ros_args
-
-    from ..bagtools import add_record_arguments
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="record", description="Record flagbot topics to an MCAP file "
-                                     "(rosbag2 layout).")
-    add_record_arguments(parser)
-    args = parser.parse_args(remove_ros_args(["record"] + argv)[1:])
-    try:
-        return run(args, ros_args=["record"] + argv)
-    except BagError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    from ..bagtools import add_record_arguments, console_main
+    return console_main("record", "Record flagbot topics to an MCAP file (rosbag2 layout).", add_record_arguments, run, argv)
 
 
 if __name__ == "__main__":

@@ -265,18 +265,8 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``replay`` console script: ``replay BAG [--rate R] [--loop] [--topics ...] [--exclude ...] [--ros-args ...]``."""
-    from rclpy.utilities import remove_ros_args
-
-    from ..bagtools import add_replay_arguments
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="replay", description="Replay an MCAP recording with its timing.")
-    add_replay_arguments(parser)
-    args = parser.parse_args(remove_ros_args(["replay"] + argv)[1:])
-    try:
-        return run(args, ros_args=["replay"] + argv)
-    except BagError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    from ..bagtools import add_replay_arguments, console_main
+    return console_main("replay", "Replay an MCAP recording with its timing.", add_replay_arguments, run, argv)
 
 
 if __name__ == "__main__":

@@ -26,9 +26,9 @@ from visualization_msgs.msg import MarkerArray
 from .. import __version__, world
 from ..bag import BagError
 from ..physics import Simulation, StepFailed
-from ..scene import SceneError, load_scene
+from ..scene import SceneError
 from . import convert, names
-from .params import ParamSpec, declare, help_text
+from .params import ParamSpec, declare, help_text, node_scene, scene_request
 from .runtime import run_node, wants_help
 
 PARAMS = [
@@ -57,19 +57,12 @@ STEP_BUDGET = 0.8       # fraction of a timer period spent stepping; the rest se
 DIAG_PERIOD = 1.0       # s of wall time between diagnostics
 
 
-def build_simulation(scene: str, n_flagella: int, overrides: list[str]) -> Simulation:
-    extra = [o for o in overrides if o.strip()]
-    if n_flagella:
-        extra.append(f"robot.n_flagella={n_flagella}")
-    return Simulation(load_scene(scene, extra))
-
-
 class SimNode(Node):
     def __init__(self):
         super().__init__("sim_node")
         declare(self, PARAMS)
         p = {s.name: self.get_parameter(s.name).value for s in PARAMS}
-        self.sim = build_simulation(p["scene"], p["n_flagella"], p["scene_overrides"])
+        self.sim = Simulation(node_scene(p["scene"], p["n_flagella"], p["scene_overrides"]))
         self.publish_rate = p["publish_rate"]
         self.marker_rate = p["marker_rate"]
         self.rtf = p["real_time_factor"]
@@ -187,13 +180,12 @@ class SimNode(Node):
         for name in ("frame_id", "child_frame_id"):
             if name in new and not str(new[name]).strip():
                 return SetParametersResult(successful=False, reason=f"{name} must not be empty")
-        if {"scene", "n_flagella", "scene_overrides"} & set(new):
-            cur = {k: self.get_parameter(k).value for k in ("scene", "n_flagella", "scene_overrides")}
-            cur.update({k: v for k, v in new.items() if k in cur})
-            try:
-                sim = build_simulation(cur["scene"], cur["n_flagella"], list(cur["scene_overrides"]))
-            except (SceneError, ValueError) as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
+        try:
+            scene = scene_request(self, new)
+        except (SceneError, ValueError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        if scene is not None:
+            sim = Simulation(scene)
             if self.sim.model.driver is not None and sim.model.driver is not None:
                 sim.set_omega(self.sim.omega_T)
             self.time_offset += self.sim.time
