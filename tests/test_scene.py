@@ -87,3 +87,11 @@ def test_unknown_section_and_file_errors(tmp_path):
     good.write_text(load_scene("design2").to_toml())
     mine = load_scene(good)
     assert mine.to_dict() == load_scene("design2").to_dict() and mine.source == str(good)
+
+
+def test_presets_set_the_discretisation_and_explicit_values_win():
+    assert load_scene("design1", ["scene.preset='fast'"]).time.dt == 2e-2
+    acc = load_scene("design2", ["scene.preset='accurate'"])
+    assert (acc.time.dt, acc.flagellum.edge_length) == (5e-3, 2.055e-3)
+    assert load_scene("design1").time.dt == 1e-2 and load_scene("design1").flagellum.edge_length == 4.11e-3
+    assert load_scene("design1", ["scene.preset='fast'", "time.dt=0.05"]).time.dt == 0.05

@@ -112,6 +112,25 @@ def scaling(edges_per_flagellum=(5, 10, 20, 40, 80, 160, 330), n: int = 3, steps
     return rows, fit_step, fit_newton
 
 
+PRESET_CASES = [("clamped_flagellum", 1, ["motor.omega_rpm=10"]), ("design1", 2, []), ("design1", 3, []),
+                ("design2", 2, []), ("design2", 3, [])]
+
+
+def preset_table(repeat: int = 3, warmup: float = 3.0, span: float = 5.0) -> str:
+    """Real-time factor of each accuracy preset (median of ``repeat``), for docs/accuracy.md."""
+    from ..scene import PRESETS
+    lines = ["real-time factor by accuracy preset (omega_T = 100 rpm; clamped flagellum at 10 rpm; median of "
+             f"{repeat})", f"{'case':20s} " + " ".join(f"{p:>12s}" for p in PRESETS)]
+    for scene, n, extra in PRESET_CASES:
+        row = []
+        for preset in PRESETS:
+            rtf = sorted(measure(scene, n, warmup, span, extra=[*extra, f"scene.preset='{preset}'"])["rtf"]
+                         for _ in range(repeat))
+            row.append(statistics.median(rtf))
+        lines.append(f"{scene + ' n=' + str(n):20s} " + " ".join(f"{x:12.1f}" for x in row))
+    return "\n".join(lines)
+
+
 def format_throughput(results: list[tuple]) -> str:
     lines = ["dt = 1e-2 s, 4.11 mm edges, omega_T = 100 rpm (median of the repeats; min..max)",
              f"{'case':12s} {'DOF':>5s} {'steps/s':>20s} {'real-time x':>20s} {'Newton/step':>11s} "
@@ -144,6 +163,7 @@ def add_arguments(ap) -> None:
     ap.add_argument("--measure", type=float, default=5.0, help="simulated seconds timed")
     ap.add_argument("--no-scaling", action="store_true", help="skip the cost-vs-DOF study")
     ap.add_argument("--no-pyelastica", action="store_true", help="skip the PyElastica comparison")
+    ap.add_argument("--no-presets", action="store_true", help="skip the real-time factor of each accuracy preset")
     ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
 
 
@@ -159,6 +179,8 @@ def run(args) -> int:
         rows, fs, fn = scaling(edges_per_flagellum=(5, 20, 80, 330) if args.quick else
                                (5, 10, 20, 40, 80, 160, 330))
         print(format_scaling(rows, fs, fn), flush=True)
+    if not args.no_presets:
+        print(preset_table(1 if args.quick else repeat, args.warmup, args.measure), flush=True)
     if not args.no_pyelastica:
         from . import pyelastica
         pyelastica.run_comparison(quick=args.quick)
