@@ -27,7 +27,10 @@ import json
 import os
 import time
 
-from ros_helpers import DISCOVERY_TIMEOUT, ROOT, ChildProcess  # noqa: F401  (tests/ is on sys.path; ROOT re-exported)
+import ros_helpers  # tests/ is on sys.path, as a script and under pytest
+from ros_helpers import DISCOVERY_TIMEOUT, ChildProcess
+
+ROOT = ros_helpers.ROOT        # the test modules import it from here
 
 # topic (relative to the namespace, or absolute) -> type; the default flagbot topics, one per message type
 TOPIC_TYPES = {

@@ -1,13 +1,40 @@
-"""Benchmarks: `flagbot bench accuracy` (accuracy vs time study) and `flagbot bench speed` (throughput)."""
+"""Benchmarks: `flagbot bench accuracy` (accuracy vs time study) and `flagbot bench speed` (throughput).
+
+Registration imports nothing heavy: the simulator is loaded only when a benchmark actually runs.
+"""
+
+
+def accuracy_arguments(ap) -> None:
+    ap.add_argument("--cases", default="clamped,design1_n2,design1_n3,design2_n2,design2_n3",
+                    help="comma-separated, from clamped, design1_n2, design1_n3, design2_n2, design2_n3")
+    ap.add_argument("--quick", action="store_true", help="a 3 x 2 grid instead of 6 x 4 (minutes, not an hour)")
+    ap.add_argument("--out", default="out/accuracy", help="directory for the CSVs, PNG and markdown")
+    ap.add_argument("--no-bvp", action="store_true", help="skip the rod-BVP reference of the clamped case")
+
+
+def speed_arguments(ap) -> None:
+    ap.add_argument("--repeat", type=int, default=3, help="repeats of each throughput case (median reported)")
+    ap.add_argument("--warmup", type=float, default=3.0, help="simulated seconds before timing (start-up transient)")
+    ap.add_argument("--measure", type=float, default=5.0, help="simulated seconds timed")
+    ap.add_argument("--no-scaling", action="store_true", help="skip the cost-vs-DOF study")
+    ap.add_argument("--no-pyelastica", action="store_true", help="skip the PyElastica comparison")
+    ap.add_argument("--no-presets", action="store_true", help="skip the real-time factor of each accuracy preset")
+    ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
+
+
+def _run(module: str):
+    def run(args):
+        import importlib
+        return importlib.import_module(f"flagbot_sim.bench.{module}").run(args)
+    return run
 
 
 def register(sub) -> None:
-    from . import accuracy, speed
     p = sub.add_parser("bench", help="benchmarks: accuracy vs time, throughput")
     bsub = p.add_subparsers(dest="bench", required=True)
     a = bsub.add_parser("accuracy", help="error of the steady outputs vs wall time over a grid of dt x edge length")
-    accuracy.add_arguments(a)
-    a.set_defaults(func=accuracy.run)
+    accuracy_arguments(a)
+    a.set_defaults(func=_run("accuracy"))
     s = bsub.add_parser("speed", help="steps/s, real-time factor, per-phase breakdown, cost vs DOF, PyElastica")
-    speed.add_arguments(s)
-    s.set_defaults(func=speed.run)
+    speed_arguments(s)
+    s.set_defaults(func=_run("speed"))

@@ -247,15 +247,9 @@ def main(argv=None) -> int:
     import argparse
     ap = argparse.ArgumentParser(prog="bench accuracy", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
+    from . import accuracy_arguments
+    accuracy_arguments(ap)
     return run(ap.parse_args(argv))
-
-
-def add_arguments(ap) -> None:
-    ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, from {', '.join(CASES)}")
-    ap.add_argument("--quick", action="store_true", help="a 3 x 2 grid instead of 6 x 4 (minutes, not an hour)")
-    ap.add_argument("--out", default="out/accuracy", help="directory for the CSVs, PNG and markdown")
-    ap.add_argument("--no-bvp", action="store_true", help="skip the rod-BVP reference of the clamped case")
 
 
 def run(args) -> int:

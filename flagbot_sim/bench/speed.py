@@ -157,16 +157,6 @@ def format_scaling(rows, fit_step, fit_newton) -> str:
     return "\n".join(lines)
 
 
-def add_arguments(ap) -> None:
-    ap.add_argument("--repeat", type=int, default=3, help="repeats of each throughput case (median reported)")
-    ap.add_argument("--warmup", type=float, default=3.0, help="simulated seconds before timing (start-up transient)")
-    ap.add_argument("--measure", type=float, default=5.0, help="simulated seconds timed")
-    ap.add_argument("--no-scaling", action="store_true", help="skip the cost-vs-DOF study")
-    ap.add_argument("--no-pyelastica", action="store_true", help="skip the PyElastica comparison")
-    ap.add_argument("--no-presets", action="store_true", help="skip the real-time factor of each accuracy preset")
-    ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
-
-
 def run(args) -> int:
     cases = CASES[:2] + CASES[3:5] if args.quick else CASES
     repeat = 1 if args.quick else args.repeat
@@ -191,5 +181,6 @@ def main(argv=None) -> int:
     import argparse
     ap = argparse.ArgumentParser(prog="bench speed", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(ap)
+    from . import speed_arguments
+    speed_arguments(ap)
     return run(ap.parse_args(argv))

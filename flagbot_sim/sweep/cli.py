@@ -1,0 +1,134 @@
+"""``flagbot sweep SCENE --grid KEY=VALUES ... --out DIR`` and ``flagbot sweep-plot DIR``."""
+from __future__ import annotations
+
+import sys
+import time
+
+from ..scene import parse_overrides
+from .engines import ENGINES, default_workers, run_tasks
+from .grid import SweepError, parse_grid, validate
+from .store import SweepStore, manifest_identity
+from .task import FRAMEWORKS, SteadySettings, make_task
+
+#: default cap on simulated time per DER run (s). Design 1 (eta_p L^4/EI ~ 28 s) is steady after ~12-20 s at
+#: 20-250 rpm with the default 2 s window and rtol 1e-3; design 2 after ~6-10 s
+DEFAULT_T_MAX = 60.0
+
+
+def register(subparsers) -> None:
+    from ..cli import add_scene_arguments
+    p = subparsers.add_parser(
+        "sweep", help="parameter sweep: DER to steady state and the beam balance (LB, NLB w/o head, NLB) at every "
+                      "grid point, one tidy CSV, resumable, plus the paper's figures",
+        description="Every grid point is run by the DER simulator until v and omega_h stop changing (or --t-max) "
+                    "and by the beam balance in each regime. Rows stream to DIR/results.csv as points finish; "
+                    "rerunning the same command resumes, computing only the missing points.")
+    add_scene_arguments(p)
+    p.add_argument("--grid", action="append", default=[], metavar="KEY=VALUES", required=True,
+                   help="a swept scene key and its values: comma list and/or inclusive start:stop:step ranges, "
+                        "e.g. --grid n=2,3 --grid motor.omega_rpm=20:250:10 --grid flagellum.length=0.09,0.13. "
+                        "Shorthands: n (robot.n_flagella), L (flagellum.length), rpm (motor.omega_rpm)")
+    p.add_argument("--out", required=True, metavar="DIR", help="sweep directory (created; reused to resume)")
+    p.add_argument("--engine", choices=ENGINES, default="local",
+                   help="local: process pool, one worker per core (default); dask: a Dask distributed cluster; "
+                        "serial: this process")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: a LocalCluster on 127.0.0.1)")
+    p.add_argument("--workers", type=int, default=None, metavar="K",
+                   help=f"worker processes for local / a Dask LocalCluster (default: cores, here {default_workers()})")
+    p.add_argument("--t-max", type=float, default=DEFAULT_T_MAX, metavar="S",
+                   help=f"cap on simulated seconds per DER run (default {DEFAULT_T_MAX:g}); the CSV's hit_cap "
+                        "says which points reached it")
+    p.add_argument("--window", type=float, default=None, metavar="S",
+                   help="steady-state window in simulated seconds (default: the scene's observe.steady_window)")
+    p.add_argument("--rtol", type=float, default=None,
+                   help="steady when omega_h and v change by less than this between consecutive windows, at three "
+                        "checks half a window apart (default: the scene's observe.steady_rtol)")
+    p.add_argument("--frameworks", default=",".join(FRAMEWORKS), metavar="LIST",
+                   help=f"comma list from {', '.join(FRAMEWORKS)} (default: all)")
+    p.add_argument("--no-plot", action="store_true", help="do not draw the figures at the end")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_sweep)
+
+    q = subparsers.add_parser("sweep-plot", help="redraw a sweep's figures and summary from DIR/results.csv alone "
+                                                 "(no simulation)")
+    q.add_argument("dir", metavar="DIR")
+    q.set_defaults(func=cmd_sweep_plot)
+
+
+def _frameworks(text: str) -> tuple[str, ...]:
+    items = tuple(x.strip() for x in text.split(",") if x.strip())
+    bad = [x for x in items if x not in FRAMEWORKS]
+    if bad or not items:
+        raise SweepError(f"--frameworks: unknown {', '.join(map(repr, bad)) or 'empty list'}; choose from "
+                         f"{', '.join(FRAMEWORKS)}")
+    if len(set(items)) != len(items):
+        raise SweepError("--frameworks lists a framework twice")
+    return tuple(fw for fw in FRAMEWORKS if fw in items)     # canonical order: the manifest compares lists
+
+
+def _progress_text(res: dict) -> str:
+    der = next((r for r in res["rows"] if r["framework"] == "der"), res["rows"][0])
+    state = "ERROR" if der["error"] else ("CAP" if der["hit_cap"] else "steady")
+    return (f"n={der['n']} L={1e3 * der['L']:g}mm {der['omega_T_rpm']:g}rpm {der['framework']}: "
+            f"v={1e3 * der['v']:.4f}mm/s {state} {der['wall_seconds']:.1f}s")
+
+
+def cmd_sweep(args) -> int:
+    from ..progress import ProgressBar
+    from ..scene import load_scene
+
+    base = load_scene(args.scene, args.overrides)
+    fixed = parse_overrides(args.overrides)
+    grid, points = validate(base, parse_grid(args.grid), fixed)
+    settings = SteadySettings(t_max=args.t_max,
+                              window=args.window if args.window is not None else base.observe.steady_window,
+                              rtol=args.rtol if args.rtol is not None else base.observe.steady_rtol)
+    settings.check()
+    frameworks = _frameworks(args.frameworks)
+    identity = manifest_identity(base.flat(), grid, settings.to_dict(), list(frameworks))
+    store = SweepStore(args.out, grid, points, identity,
+                       extra={"scene_name": base.scene.name, "scene_source": base.source, "set": args.overrides,
+                              "command": sys.argv[1:]}, scene_toml=base.to_toml())
+    pending = store.pending()
+    workers = 1 if args.engine == "serial" else (args.workers or default_workers())
+    where = args.scheduler or ("this process" if args.engine == "serial" else f"{workers} worker(s)")
+    print(f"sweep {base.scene.name}: {len(points)} points x {len(frameworks)} frameworks; "
+          f"{len(points) - len(pending)} already in {store.csv_path}; computing {len(pending)} "
+          f"[{args.engine}, {where}]", file=sys.stderr)
+    tasks = [make_task(base, p.key, p.overrides(), settings, frameworks) for p in pending]
+    bar = ProgressBar(len(pending), label="sweep", unit="pts", enabled=not args.quiet and bool(pending))
+    t0 = time.perf_counter()
+    done = 0
+    try:
+        for res in run_tasks(tasks, args.engine, args.workers, args.scheduler):
+            store.write_point(res)
+            done += 1
+            bar.update(done, _progress_text(res), force=done == len(pending))
+    except KeyboardInterrupt:
+        bar.close()
+        store.close()
+        print(f"interrupted: {done} of {len(pending)} points written to {store.csv_path}; rerun the same command "
+              "to compute the rest", file=sys.stderr)
+        return 130
+    bar.close()
+    store.close()
+    wall = time.perf_counter() - t0
+    if pending:
+        print(f"computed {done} points in {wall:.1f} s wall ({wall / done:.2f} s per point)", file=sys.stderr)
+    if args.no_plot:
+        return 0
+    return _plot(args.out)
+
+
+def _plot(directory) -> int:
+    from .plots import format_summary, make_all
+    out = make_all(directory)
+    print(format_summary(out["summary"]))
+    print("figures: " + ", ".join(out["figures"]))
+    errors = sum(len(g["errors"]) for g in out["summary"]["groups"])
+    return 1 if errors else 0
+
+
+def cmd_sweep_plot(args) -> int:
+    return _plot(args.dir)

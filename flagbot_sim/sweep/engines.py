@@ -1,0 +1,134 @@
+"""Where the grid points run: ``serial`` (this process), ``local`` (a spawn-started process pool, one worker per
+core) or ``dask`` (a Dask distributed cluster: ``--scheduler tcp://host:8786``, or a LocalCluster on this
+machine bound to 127.0.0.1). All three call the same :func:`flagbot_sim.sweep.task.run_point` on the same
+picklable task dicts and yield results as they finish; the caller streams them to the CSV.
+"""
+from __future__ import annotations
+
+import os
+import signal
+from typing import Iterator
+
+from .grid import SweepError
+from .task import run_point
+
+ENGINES = ("local", "dask", "serial")
+
+#: one thread per worker process: the workers already use every core, and threaded BLAS would oversubscribe
+_SINGLE_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+def default_workers() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:     # not Linux
+        return os.cpu_count() or 1
+
+
+def _single_thread_env() -> None:
+    # inherited by workers started after this (spawn: fresh interpreters that import numpy afresh)
+    for k in _SINGLE_THREAD_ENV:
+        os.environ.setdefault(k, "1")
+
+
+def _worker_init() -> None:
+    # Ctrl-C goes to the whole process group: only the parent handles it (cancels, then stops the workers);
+    # a worker interrupted mid-task would only turn into a broken pool
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def run_serial(tasks: list[dict]) -> Iterator[dict]:
+    for t in tasks:
+        yield run_point(t)
+
+
+def run_local(tasks: list[dict], workers: int) -> Iterator[dict]:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    _single_thread_env()
+    # spawn, not fork: no inherited locks, numba state or open files; the same start as on macOS/Windows
+    ex = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_worker_init)
+    futures = [ex.submit(run_point, t) for t in tasks]
+    finished = False
+    try:
+        for fut in as_completed(futures):
+            yield fut.result()
+        finished = True
+    except BrokenProcessPool as exc:
+        # a worker died without a Python exception (out of memory, a signal): the pool cannot go on
+        raise SweepError(f"a worker process died ({exc}); finished points are saved, rerun to resume") from None
+    finally:
+        if finished:
+            ex.shutdown(wait=True)
+        else:
+            # interrupted (Ctrl-C, or the consumer stopped): drop queued tasks and stop our own workers now
+            # rather than waiting for their current point; finished points are already in the CSV
+            procs = list((getattr(ex, "_processes", None) or {}).values())   # shutdown() forgets them
+            ex.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                if p.is_alive():
+                    p.terminate()
+            for p in procs:
+                p.join(timeout=5)
+
+
+def run_dask(tasks: list[dict], workers: int, scheduler: str | None) -> Iterator[dict]:
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+        from distributed import KilledWorker
+    except ImportError:
+        raise SweepError("--engine dask needs Dask distributed: pip install 'dask[distributed]'") from None
+    import logging
+
+    cluster = None
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise SweepError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    else:
+        _single_thread_env()
+        # every listener on the loopback interface: the scheduler, the workers, their nannies and the
+        # dashboard (which only starts if bokeh is installed)
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                               silence_logs=logging.ERROR)
+        client = Client(cluster)
+    futures = []
+    try:
+        # pure=False: a fresh key per submission, so a long-lived scheduler never hands back a stale result
+        futures = [client.submit(run_point, t, pure=False) for t in tasks]
+        for fut in as_completed(futures):
+            try:
+                res = fut.result()
+            except KilledWorker as exc:
+                raise SweepError(f"Dask gave up on a task after its workers died ({exc}); finished points are "
+                                 "saved, rerun to resume") from None
+            yield res
+    finally:
+        if futures:
+            client.cancel(futures)
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_tasks(tasks: list[dict], engine: str, workers: int | None = None,
+              scheduler: str | None = None) -> Iterator[dict]:
+    if engine not in ENGINES:
+        raise SweepError(f"--engine {engine!r}: choose one of {', '.join(ENGINES)}")
+    if scheduler and engine != "dask":
+        raise SweepError("--scheduler is only used with --engine dask")
+    if workers is not None and workers < 1:
+        raise SweepError(f"--workers must be at least 1, got {workers}")
+    k = workers or default_workers()
+    if not tasks:
+        return iter(())
+    if engine == "serial":
+        return run_serial(tasks)
+    if engine == "local":
+        return run_local(tasks, min(k, len(tasks)))
+    return run_dask(tasks, min(k, len(tasks)), scheduler)

@@ -1,0 +1,273 @@
+"""`flagbot sweep`: grid parsing and validation, engines that agree to the last bit, steady-state detection with a
+cap, resume after a kill, and a sweep directory that refuses to mix two different sweeps."""
+import csv
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from flagbot_sim.cli import main
+from flagbot_sim.physics import Simulation
+from flagbot_sim.scene import load_scene
+from flagbot_sim.sweep import SteadySettings, SweepError, parse_grid
+from flagbot_sim.sweep.engines import run_tasks
+from flagbot_sim.sweep.store import RESULTS, read_results
+from flagbot_sim.sweep.task import make_task, run_der
+
+ROOT = Path(__file__).resolve().parents[1]
+# design 2 with a 50 mm flagellum: eta_p L^4/EI ~ 0.3 s, steady within ~3 s of simulated time, ~0.2 s per point
+SMALL = ["design2", "--set", "flagellum.length=0.05", "--grid", "n=2,3", "--grid", "motor.omega_rpm=40,80",
+         "--t-max", "8", "--window", "1", "--quiet", "--no-plot"]
+#: columns that record when and where a row was computed, not what
+NOT_RESULTS = {"wall_seconds", "worker", "finished_at"}
+
+
+def raw_rows(directory) -> list[dict]:
+    with open(Path(directory) / RESULTS, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+# ---------------------------------------------------------------- grid
+def test_ranges_are_inclusive_and_exact():
+    grid = parse_grid(["n=2,3", "motor.omega_rpm=20:250:10", "L=0.09:0.13:0.02", "head.C1=1,2:3:0.5"])
+    assert grid["robot.n_flagella"] == [2, 3] and all(type(v) is int for v in grid["robot.n_flagella"])
+    rpm = grid["motor.omega_rpm"]
+    assert len(rpm) == 24 and rpm[0] == 20 and rpm[-1] == 250 and rpm[5] == 70
+    assert grid["flagellum.length"] == [0.09, 0.11, 0.13]        # no 0.10999999999999999 from float steps
+    assert grid["head.C1"] == [1, 2.0, 2.5, 3.0]
+    with pytest.raises(SweepError, match="motor.omega_rpm.*start:stop:step"):
+        parse_grid(["rpm=20:250:10:5"])
+
+
+@pytest.mark.parametrize("grid, needle", [
+    (["robot.n_flagela=2,3"], "robot.n_flagela"),
+    (["bogus=1,2"], "bogus"),
+    (["n=2,x"], "robot.n_flagella"),
+    (["n=0,2"], "robot.n_flagella"),
+    (["motor.omega_rpm=250:20:10"], "motor.omega_rpm"),
+    (["rpm=20:250:0"], "motor.omega_rpm"),
+    (["rpm=20:250"], "motor.omega_rpm"),
+    (["flagellum.length=-0.1"], "flagellum.length"),
+    (["flagellum.edge_length=0.2"], "flagellum.edge_length"),       # longer than the flagellum: a combination
+    (["n=2,2"], "robot.n_flagella"),
+    (["n=2", "robot.n_flagella=3"], "robot.n_flagella"),
+    (["numerics.linear_solver=arrow,lapack"], "numerics.linear_solver"),
+])
+def test_bad_grid_is_a_one_line_error_naming_the_key(tmp_path, capsys, grid, needle):
+    argv = ["sweep", "design2", "--out", str(tmp_path / "out"), "--quiet"]
+    for g in grid:
+        argv += ["--grid", g]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and needle in err and "\n" not in err, err
+    assert not (tmp_path / "out").exists()          # refused before anything was created or computed
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--set", "robot.n_flagella=3", "--grid", "n=2"], "robot.n_flagella"),
+    (["--grid", "n=2", "--frameworks", "der,fem"], "--frameworks"),
+    (["--grid", "n=2", "--t-max", "2", "--window", "1"], "--t-max"),
+])
+def test_bad_options_are_one_line_errors(tmp_path, capsys, extra, needle):
+    assert main(["sweep", "design2", "--out", str(tmp_path / "o"), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and needle in err and "\n" not in err, err
+
+
+# ---------------------------------------------------------------- engines
+@pytest.fixture(scope="module")
+def three_engines(tmp_path_factory):
+    base = tmp_path_factory.mktemp("engines")
+    out = {}
+    for engine in ("serial", "local", "dask"):
+        d = base / engine
+        assert main(["sweep", *SMALL, "--out", str(d), "--engine", engine, "--workers", "2"]) == 0
+        out[engine] = raw_rows(d)
+    return out
+
+
+def test_serial_local_pool_and_dask_give_identical_numbers(three_engines):
+    def table(rows):
+        return {(r["point"], r["framework"]): {k: v for k, v in r.items() if k not in NOT_RESULTS} for r in rows}
+    serial = table(three_engines["serial"])
+    assert len(serial) == 4 * 4 and len(three_engines["serial"]) == 16      # 4 points x 4 frameworks, no repeats
+    for engine in ("local", "dask"):
+        other = table(three_engines[engine])
+        assert other.keys() == serial.keys()
+        for key in serial:
+            assert other[key] == serial[key], (engine, key)     # the CSV text: bit-identical floats
+    # the comparison is not vacuous: the points differ from each other and every DER run became steady
+    der = [r for r in three_engines["serial"] if r["framework"] == "der"]
+    assert len({r["v"] for r in der}) == 4 and all(r["converged"] == "True" for r in der)
+    assert all(float(r["sim_time"]) < 8 and r["hit_cap"] == "False" for r in der)
+
+
+def test_pool_and_dask_really_ran_elsewhere(three_engines):
+    here = f":{os.getpid()}"
+    assert all(r["worker"].endswith(here) for r in three_engines["serial"])
+    for engine in ("local", "dask"):
+        assert not any(r["worker"].endswith(here) for r in three_engines[engine]), engine
+
+
+def test_dask_local_cluster_listens_on_loopback_only():
+    psutil = pytest.importorskip("psutil")
+    base = load_scene("design2", ["flagellum.length=0.05"])
+    settings = SteadySettings(t_max=3.0, window=1.0, rtol=1e-3)
+    tasks = [make_task(base, f"p{i}", {"motor.omega_rpm": rpm}, settings, ("lb",)) for i, rpm in enumerate((40, 80))]
+    gen = run_tasks(tasks, "dask", workers=2)
+    first = next(gen)             # the cluster is up and working
+    me = psutil.Process()
+    def inet(p):     # psutil < 6 calls it connections()
+        return (getattr(p, "net_connections", None) or p.connections)(kind="inet")
+    listeners = [c.laddr for p in [me, *me.children(recursive=True)] for c in inet(p)
+                 if c.status == psutil.CONN_LISTEN]
+    rest = list(gen)
+    assert len(listeners) >= 3     # scheduler + two workers at least
+    assert all(addr.ip == "127.0.0.1" for addr in listeners), listeners
+    assert {first["point"], *(r["point"] for r in rest)} == {"p0", "p1"}
+
+
+# ---------------------------------------------------------------- steady state
+def test_der_stops_at_a_detected_steady_state_that_a_long_run_confirms():
+    scene = load_scene("design2", ["flagellum.length=0.05", "motor.omega_rpm=80"])
+    row = run_der(scene, SteadySettings(t_max=20.0, window=1.0, rtol=1e-3))
+    assert row["converged"] and not row["hit_cap"] and row["sim_time"] < 6.0
+    assert row["change_omega_h"] < 1e-3 and row["change_v"] < 1e-3
+    sim = Simulation(scene)
+    sim.run(15.0)
+    ref = sim.observer.window_rates(1.0)
+    assert row["v"] == pytest.approx(ref["v"], rel=2e-3)
+    assert row["omega_h"] == pytest.approx(ref["omega_h"], rel=2e-3)
+
+
+def test_a_run_that_cannot_settle_reports_the_cap():
+    scene = load_scene("design2", ["flagellum.length=0.05", "motor.omega_rpm=80"])
+    row = run_der(scene, SteadySettings(t_max=4.0, window=1.0, rtol=1e-14))
+    assert row["hit_cap"] and not row["converged"] and row["steps"] == 400
+    assert math.isfinite(row["v"]) and row["v"] > 0        # still reports its last-window rates
+
+
+def test_cap_hits_are_in_the_csv_and_the_summary(tmp_path, capsys):
+    out = tmp_path / "cap"
+    code = main(["sweep", "design2", "--set", "flagellum.length=0.05", "--grid", "rpm=40,80", "--t-max", "3",
+                 "--window", "1", "--rtol", "1e-14", "--frameworks", "der,nlb", "--out", str(out), "--quiet"])
+    assert code == 0
+    rows = read_results(out)
+    der = [r for r in rows if r["framework"] == "der"]
+    assert len(der) == 2 and all(r["hit_cap"] and not r["converged"] for r in der)
+    assert not any(r["hit_cap"] for r in rows if r["framework"] == "nlb")
+    assert "2 DER runs hit the time cap" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------- resume
+RESUME_ARGS = ["design2", "--set", "flagellum.length=0.05", "--grid", "n=2,3", "--grid", "rpm=30:80:10",
+               "--t-max", "6", "--window", "1", "--rtol", "1e-14", "--quiet", "--no-plot"]   # 12 points, all capped
+
+
+def _complete_points(rows):
+    by = {}
+    for r in rows:
+        by.setdefault(r["point"], []).append(r)
+    return {k: v for k, v in by.items() if len(v) == 4}
+
+
+@pytest.mark.parametrize("sig, engine", [(signal.SIGKILL, "serial"), (signal.SIGINT, "local")])
+def test_killed_sweep_resumes_computing_only_the_missing_points(tmp_path, capsys, sig, engine):
+    psutil = pytest.importorskip("psutil")
+    out = tmp_path / "resume"
+    argv = ["sweep", *RESUME_ARGS, "--out", str(out), "--engine", engine, "--workers", "2"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "flagbot_sim", *argv], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    children = set()
+    deadline = time.time() + 120
+    try:
+        while time.time() < deadline:
+            try:
+                children |= {c.pid for c in psutil.Process(proc.pid).children(recursive=True)}
+            except psutil.NoSuchProcess:
+                pass
+            csv_path = out / RESULTS
+            if csv_path.exists() and csv_path.read_text().count("\n") >= 1 + 2 * 4:
+                break
+            assert proc.poll() is None, "the sweep ended before it could be interrupted: " + proc.stderr.read()
+            time.sleep(0.02)
+        os.kill(proc.pid, sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    if sig == signal.SIGINT:
+        assert proc.returncode == 130 and "interrupted" in err and "rerun the same command" in err
+        def alive():
+            out = []
+            for pid in children:
+                try:
+                    if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                        out.append(pid)
+                except psutil.NoSuchProcess:
+                    pass
+            return out
+        until = time.time() + 10
+        while alive() and time.time() < until:
+            time.sleep(0.1)
+        assert children and not alive()          # the pool's workers were stopped with it
+    else:
+        assert proc.returncode == -signal.SIGKILL
+    # a kill can land between the rows of one point or inside a line: simulate both on top of the real kill
+    text = (out / RESULTS).read_text()
+    lines = text.splitlines(keepends=True)
+    (out / RESULTS).write_text("".join(lines[:-1]) + "robot.n_flagella=3;motor.omega_rpm=80.0,3,80.0,3,0.0")
+    before = _complete_points(read_results(out))
+    assert 0 < len(before) < 12
+
+    t_restart = time.time()
+    capsys.readouterr()
+    assert main(["sweep", *RESUME_ARGS, "--out", str(out), "--engine", "serial"]) == 0
+    assert f"computing {12 - len(before)} " in capsys.readouterr().err
+    rows = read_results(out)
+    keys = [(r["point"], r["framework"]) for r in rows]
+    assert len(keys) == len(set(keys)) == 12 * 4                     # every point once, nothing duplicated
+    after = _complete_points(rows)
+    assert len(after) == 12
+    for point, old_rows in before.items():                            # finished points were not recomputed
+        assert sorted(r["finished_at"] for r in after[point]) == sorted(r["finished_at"] for r in old_rows)
+    new_points = {r["point"] for r in rows if r["finished_at"] >= t_restart}
+    assert new_points == set(after) - set(before)
+    assert len((out / RESULTS).read_text().splitlines()) == 1 + 48   # header + rows, no torn line left
+
+
+def test_a_different_sweep_in_the_same_directory_is_refused(tmp_path, capsys):
+    out = str(tmp_path / "one")
+    base = ["sweep", "design2", "--set", "flagellum.length=0.05", "--t-max", "3", "--window", "1",
+            "--frameworks", "lb", "--out", out, "--quiet", "--no-plot"]
+    assert main([*base, "--grid", "rpm=40,80"]) == 0
+    capsys.readouterr()
+    assert main([*base, "--grid", "rpm=40,80"]) == 0
+    assert "computing 0 " in capsys.readouterr().err                       # same sweep: resumes, nothing to do
+    assert main([*base, "--grid", "rpm=40,90"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "different sweep" in err and "motor.omega_rpm" in err and "\n" not in err
+    assert main([*base, "--set", "head.C1=3", "--grid", "rpm=40,80"]) == 2
+    assert "head.C1" in capsys.readouterr().err
+    assert len(read_results(out)) == 2                                   # the refused runs wrote nothing
+
+
+def test_dask_engine_submits_to_the_given_scheduler(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    import logging
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR) as cluster, \
+            distributed.Client(cluster) as client:
+        worker_pids = set(client.run(os.getpid).values())
+        out = tmp_path / "remote"
+        assert main(["sweep", "design2", "--set", "flagellum.length=0.05", "--grid", "rpm=40,80", "--t-max", "3",
+                     "--window", "1", "--frameworks", "der,lb", "--engine", "dask", "--scheduler",
+                     cluster.scheduler_address, "--out", str(out), "--quiet", "--no-plot"]) == 0
+    rows = read_results(out)
+    assert len(rows) == 4 and {int(r["worker"].rsplit(":", 1)[1]) for r in rows} == worker_pids
