@@ -115,6 +115,15 @@ def _new_figure(ncols: int = 1, width: float = 6.4):
     return fig, axes
 
 
+def _finish(ax, xlabel: str, ylabel: str, title: str, **legend):
+    """Axis labels, title, grid and legend, the same on every figure."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, **legend)
+
+
 def figure_speed(rows: list[dict], L: float | None = None, regimes=SPEED_REGIMES, title: str = ""):
     fig, (ax,) = _new_figure()
     ns = n_values(rows)
@@ -140,11 +149,8 @@ def figure_speed(rows: list[dict], L: float | None = None, regimes=SPEED_REGIMES
             ax.plot([st["x"]], [st["y"]], ls="none", marker="*", ms=14, color=_colour(ns, n), mec="k",
                     label=f"{name}: DER n={n} steepest slope at omega_T_bar={st['x']:.3g}")
             ax.annotate(name, (st["x"], st["y"]), textcoords="offset points", xytext=(-12, 6))
-    ax.set_xlabel(r"$\bar\omega_T = \omega_T \eta_p L^4 / EI$")
-    ax.set_ylabel(r"$\bar v = v \eta_p L^3 / EI$")
-    ax.set_title(title or "speed vs motor speed")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    _finish(ax, r"$\bar\omega_T = \omega_T \eta_p L^4 / EI$", r"$\bar v = v \eta_p L^3 / EI$",
+            title or "speed vs motor speed")
     return fig
 
 
@@ -191,12 +197,9 @@ def figure_length(rows: list[dict], regime: str = LENGTH_REGIME, title: str = ""
                 if len(x):
                     ax.plot(x, 1e3 * y, ls=ls, color=colour, marker=markers[j % len(markers)] if fw == "der"
                             else None, ms=3.5, label=f"{letter}{1e3 * L:.0f}n{n}")
-    ax.set_xlabel(r"$\omega_T$ (rpm)")
-    ax.set_ylabel(r"$v$ (mm/s)")
-    ax.set_title(title or f"speed vs motor speed for several flagellum lengths (D: DER, B: "
-                          f"{FRAMEWORK_LABELS[regime]})")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    _finish(ax, r"$\omega_T$ (rpm)", r"$v$ (mm/s)",
+            title or f"speed vs motor speed for several flagellum lengths (D: DER, B: {FRAMEWORK_LABELS[regime]})",
+            ncol=2)
     return fig
 
 
@@ -214,11 +217,7 @@ def figure_deflection(rows: list[dict], L: float | None = None, title: str = "")
                 wide = fw == "nlb-nohead"
                 ax.plot(x, y, color=colours[fw], ls=lines[n], lw=4 if wide else 1.5, alpha=0.45 if wide else 1.0,
                         label=_label(fw, n))
-    ax.set_xlabel(r"$\bar\omega_T$")
-    ax.set_ylabel(r"tip deflection $w(L)/L$")
-    ax.set_title(title or "beam tip deflection in the three regimes")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    _finish(ax, r"$\bar\omega_T$", r"tip deflection $w(L)/L$", title or "beam tip deflection in the three regimes")
     return fig
 
 
