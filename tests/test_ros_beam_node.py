@@ -50,12 +50,13 @@ def test_late_subscribers_get_the_current_prediction_and_bad_commands_change_not
     spin_until(ros, lambda: cmd.get_subscription_count() >= 1, DISCOVERY_TIMEOUT, "beam_node")
     cmd.publish(Float64(data=6.0))
     first = listen(ros)
-    spin_until(ros, lambda: first["omega_t"] and first["omega_h"][-1] + first["omega_t"][-1] == pytest.approx(6.0),
-               30, "prediction for 6 rad/s")
+    spin_until(ros, lambda: first["omega_h"] and first["omega_t"]
+               and first["omega_h"][-1] + first["omega_t"][-1] == pytest.approx(6.0), 30, "prediction for 6 rad/s")
     for bad in (math.nan, math.inf, 1e9):
         cmd.publish(Float64(data=bad))
     late = listen(ros)              # a new subscription: the latched value arrives without a new command
-    spin_until(ros, lambda: late["speed"] and len(late["speed"]) >= 3, 10, "latched prediction")
+    # the three topics are separate channels: wait for each, in whatever order they arrive
+    spin_until(ros, lambda: all(late[k] for k in ("speed", "omega_h", "omega_t")), 10, "latched prediction")
     assert late["omega_h"][-1] + late["omega_t"][-1] == pytest.approx(6.0)
     assert all(math.isfinite(x) for k in late for x in late[k])
     assert beam_node.alive()

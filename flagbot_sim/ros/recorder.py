@@ -39,6 +39,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
                    WriteSummary, normalize_type, qos_to_yaml)
 from .names import DEFAULT_RECORD_TOPICS
+from .runtime import SLICE, ros_process
 
 #: pass as ``topics`` to record every topic visible in the graph
 ALL = "all"
@@ -263,46 +264,40 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
         extra[k] = v
     meta = RunMetadata(scene_toml=scene_text(args.scene) if args.scene else "", extra=extra)
     topics = ALL if args.all else (args.topics or None)
-    rclpy.init(args=ros_args)
     node = executor = rec = None
     summary = None
     code = 0
-    try:
-        node = rclpy.create_node(args.node_name, namespace=args.namespace or None)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        if args.params_from:
-            meta.parameters = fetch_parameters(node, executor, args.params_from)
-            # the sim_node's `scene` parameter names a built-in scene or a file: store its text too (overrides
-            # are in `scene_overrides`, among the parameters)
-            if not meta.scene_toml and isinstance(meta.parameters.get("scene"), str):
-                try:
-                    meta.scene_toml = scene_text(meta.parameters["scene"])
-                except Exception as exc:
-                    node.get_logger().warning(f"scene {meta.parameters['scene']!r} not stored: {exc}")
-        rec = Recorder(node, args.output or default_output(), topics, meta, exclude=args.exclude or (),
-                       compression=args.compression, overwrite=args.overwrite)
-        what = "all topics" if rec.all_topics else ", ".join(rec.wanted)
-        print(f"recording {what} to {rec.path} (Ctrl-C to stop)", file=sys.stderr, flush=True)
-        end = time.monotonic() + args.duration if args.duration else None
-        while rclpy.ok() and (end is None or time.monotonic() < end):
-            executor.spin_once(timeout_sec=0.1 if end is None else max(0.0, min(0.1, end - time.monotonic())))
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # a signal can shut the context down between rclpy.ok() and the wait inside spin_once: that is the
-        # normal end; anything else is a real error (the file is still closed below)
-        if rclpy.ok():
-            raise
-    finally:
-        if rec is not None:
-            summary = rec.close()
-        if executor is not None and node is not None:
-            executor.remove_node(node)
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    with ros_process(ros_args) as stop:
+        try:
+            node = rclpy.create_node(args.node_name, namespace=args.namespace or None)
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            if args.params_from:
+                meta.parameters = fetch_parameters(node, executor, args.params_from)
+                # the sim_node's `scene` parameter names a built-in scene or a file: store its text too
+                # (overrides are in `scene_overrides`, among the parameters)
+                if not meta.scene_toml and isinstance(meta.parameters.get("scene"), str):
+                    try:
+                        meta.scene_toml = scene_text(meta.parameters["scene"])
+                    except Exception as exc:
+                        node.get_logger().warning(f"scene {meta.parameters['scene']!r} not stored: {exc}")
+            rec = Recorder(node, args.output or default_output(), topics, meta, exclude=args.exclude or (),
+                           compression=args.compression, overwrite=args.overwrite)
+            what = "all topics" if rec.all_topics else ", ".join(rec.wanted)
+            print(f"recording {what} to {rec.path} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+            end = time.monotonic() + args.duration if args.duration else None
+            while not stop.is_set() and rclpy.ok() and (end is None or time.monotonic() < end):
+                executor.spin_once(timeout_sec=SLICE if end is None else max(0.0, min(SLICE, end - time.monotonic())))
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            if rec is not None:
+                summary = rec.close()
+            if executor is not None and node is not None:
+                executor.remove_node(node)
+                executor.shutdown()
+            if node is not None:
+                node.destroy_node()
     if summary is not None:
         print(summary.format(), flush=True)
         code = 1 if summary.error else 0

@@ -23,12 +23,13 @@ from typing import Iterable
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..bag import BagError, BagReader, ScanReport
 from .recorder import message_class
+from .runtime import SLICE, ros_process
 
 CLOCK_TOPIC = "/clock"
 
@@ -211,53 +212,50 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
     """The ``replay`` command: returns the exit code (0 also when parts of a damaged file were skipped)."""
     # read the file before touching ROS: a non-MCAP file fails fast with a clear message
     BagReader(args.bag).close()
-    rclpy.init(args=ros_args)
     node = executor = replayer = None
     spin_thread = None
-    stop = threading.Event()
     stats = None
-    try:
-        node = rclpy.create_node(args.node_name, namespace=args.namespace or None)
-        replayer = Replayer(node, args.bag, rate=args.rate, loop=args.loop, topics=args.topics or None,
-                            exclude=args.exclude or (), start_offset=args.start_offset, clock=not args.no_clock,
-                            clock_rate=args.clock_rate)
-        if not replayer.report.ok:
-            print("warning: " + replayer.report.describe_loss(), file=sys.stderr, flush=True)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
+    with ros_process(ros_args) as stop:
+        try:
+            node = rclpy.create_node(args.node_name, namespace=args.namespace or None)
+            replayer = Replayer(node, args.bag, rate=args.rate, loop=args.loop, topics=args.topics or None,
+                                exclude=args.exclude or (), start_offset=args.start_offset, clock=not args.no_clock,
+                                clock_rate=args.clock_rate)
+            if not replayer.report.ok:
+                print("warning: " + replayer.report.describe_loss(), file=sys.stderr, flush=True)
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
 
-        def spin():
-            try:
-                executor.spin()
-            except (ExternalShutdownException, KeyboardInterrupt):
-                pass
-            except Exception:
-                pass
+            def spin():
+                try:
+                    while not stop.is_set() and rclpy.ok():
+                        executor.spin_once(timeout_sec=SLICE)
+                except Exception:       # the context was shut down: the replay ends either way
+                    pass
+                stop.set()
+
+            spin_thread = threading.Thread(target=spin, daemon=True)
+            spin_thread.start()
+            if args.wait_for_subscribers > 0 and not replayer.wait_for_subscribers(args.wait_for_subscribers, stop):
+                node.get_logger().warning("not every topic has a subscriber; starting anyway")
+            if args.delay > 0:
+                stop.wait(args.delay)
+            stats = replayer.run(stop)
+            if not stats.interrupted:
+                replayer.wait_for_delivery()
+        except KeyboardInterrupt:
+            pass
+        finally:
             stop.set()
-
-        spin_thread = threading.Thread(target=spin, daemon=True)
-        spin_thread.start()
-        if args.wait_for_subscribers > 0 and not replayer.wait_for_subscribers(args.wait_for_subscribers, stop):
-            node.get_logger().warning("not every topic has a subscriber; starting anyway")
-        if args.delay > 0:
-            stop.wait(args.delay)
-        stats = replayer.run(stop)
-        if not stats.interrupted:
-            replayer.wait_for_delivery()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        stop.set()
-        if executor is not None and node is not None:
-            executor.remove_node(node)
-            executor.shutdown()
-        if spin_thread is not None:
-            spin_thread.join(timeout=5.0)
-        if replayer is not None:
-            replayer.close()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+            if spin_thread is not None:
+                spin_thread.join(timeout=5.0)
+            if executor is not None and node is not None:
+                executor.remove_node(node)
+                executor.shutdown()
+            if replayer is not None:
+                replayer.close()
+            if node is not None:
+                node.destroy_node()
     if stats is not None:
         print(stats.format(), flush=True)
     return 0

@@ -1,11 +1,83 @@
-"""Process entry helper: init, spin, and a clean shutdown on SIGINT/SIGTERM (no traceback)."""
+"""Process entry helpers: init, spin, and a clean shutdown on SIGINT/SIGTERM (no traceback, no crash).
+
+rclpy's own signal handler shuts every context down from a separate thread, while the main thread may be
+inside a callback that is publishing; under load that race crashed sim_node with SIGSEGV inside the middleware
+(seen once in ~70 signal-shutdown runs). So processes here take the signals themselves: the handler only
+raises a flag, the spin loop notices it within one wait slice and tears down in order on the main thread.
+A second signal falls through to the default action, so a hung teardown can still be interrupted.
+"""
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
-from typing import Callable
+import threading
+import time
+from typing import Callable, Iterator
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+
+SLICE = 0.1     # s: longest wait before a stop request is noticed
+
+
+class StopRequest:
+    """A stop flag set by SIGINT/SIGTERM or by any thread, with the ``threading.Event`` interface.
+
+    The signal handler only assigns an attribute: it runs on the main thread between two bytecodes, possibly
+    while that thread holds a lock (an Event's included), so it must not take one.
+    """
+
+    def __init__(self) -> None:
+        self._signalled = False
+        self._event = threading.Event()
+        self._saved: dict[int, object] = {}
+
+    def set(self) -> None:
+        self._event.set()
+
+    def is_set(self) -> bool:
+        return self._signalled or self._event.is_set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        end = None if timeout is None else time.monotonic() + timeout
+        while not self.is_set():
+            left = SLICE if end is None else min(SLICE, end - time.monotonic())
+            if left <= 0:
+                break
+            self._event.wait(left)
+        return self.is_set()
+
+    def _on_signal(self, signum, frame) -> None:
+        self._signalled = True
+        for sig in self._saved:       # a second signal: the default action (KeyboardInterrupt / terminate)
+            signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
+
+    def install(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._saved[sig] = signal.signal(sig, self._on_signal)
+
+    def uninstall(self) -> None:
+        for sig, handler in self._saved.items():
+            signal.signal(sig, handler)
+        self._saved.clear()
+
+
+@contextlib.contextmanager
+def ros_process(args: list[str] | None) -> Iterator[StopRequest]:
+    """rclpy initialised without its signal handlers; SIGINT/SIGTERM set the yielded StopRequest.
+
+    The body tears its own nodes down; the context is shut down on exit.
+    """
+    stop = StopRequest()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop.install()
+    try:
+        yield stop
+    finally:
+        stop.uninstall()
+        rclpy.try_shutdown()
 
 
 def wants_help(argv: list[str]) -> bool:
@@ -17,31 +89,30 @@ def wants_help(argv: list[str]) -> bool:
 def run_node(make_node: Callable[[], object], argv: list[str] | None = None) -> int:
     """Create the node, spin it until SIGINT/SIGTERM or rclpy shutdown, then tear everything down in order."""
     argv = sys.argv if argv is None else argv
-    rclpy.init(args=argv)      # rclpy installs SIGINT/SIGTERM handlers that shut the context down
-    node = None
-    executor = SingleThreadedExecutor()
     code = 0
-    try:
-        node = make_node()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as exc:
-        # A callback interrupted by SIGINT/SIGTERM fails on the already-invalid context: that is the shutdown,
-        # not an error. Anything else (a bad parameter, a bad scene at startup) is one line, not a traceback.
-        if rclpy.ok():
-            print(f"error: {exc}", file=sys.stderr)
-            code = 2
-    finally:
-        if node is not None:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            executor.remove_node(node)
-        executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+    with ros_process(argv) as stop:
+        node = None
+        executor = SingleThreadedExecutor()
+        try:
+            node = make_node()
+            executor.add_node(node)
+            while not stop.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=SLICE)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        except Exception as exc:
+            # a node that shut the context down from a callback (cmd_profile --exit-at-end) ends the loop
+            # normally; anything else (a bad parameter, a bad scene at startup) is one line, not a traceback
+            if rclpy.ok():
+                print(f"error: {exc}", file=sys.stderr)
+                code = 2
+        finally:
+            if node is not None:
+                close = getattr(node, "close", None)
+                if close is not None:
+                    close()
+                executor.remove_node(node)
+            executor.shutdown()
+            if node is not None:
+                node.destroy_node()
     return code
