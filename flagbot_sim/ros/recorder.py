@@ -39,7 +39,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
                    WriteSummary, normalize_type, qos_to_yaml)
 from .names import DEFAULT_RECORD_TOPICS
-from .runtime import SLICE, ros_process
+from .runtime import SLICE, release, ros_process
 
 #: pass as ``topics`` to record every topic visible in the graph
 ALL = "all"
@@ -293,11 +293,7 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
         finally:
             if rec is not None:
                 summary = rec.close()
-            if executor is not None and node is not None:
-                executor.remove_node(node)
-                executor.shutdown()
-            if node is not None:
-                node.destroy_node()
+            release(executor, node)
     if summary is not None:
         print(summary.format(), flush=True)
         code = 1 if summary.error else 0

@@ -29,7 +29,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from ..bag import BagError, BagReader, ScanReport
 from .recorder import message_class
-from .runtime import SLICE, ros_process
+from .runtime import SLICE, release, ros_process
 
 CLOCK_TOPIC = "/clock"
 
@@ -249,13 +249,9 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
             stop.set()
             if spin_thread is not None:
                 spin_thread.join(timeout=5.0)
-            if executor is not None and node is not None:
-                executor.remove_node(node)
-                executor.shutdown()
             if replayer is not None:
                 replayer.close()
-            if node is not None:
-                node.destroy_node()
+            release(executor, node)
     if stats is not None:
         print(stats.format(), flush=True)
     return 0

@@ -64,6 +64,16 @@ class StopRequest:
         self._saved.clear()
 
 
+def release(executor: SingleThreadedExecutor | None, node) -> None:
+    """Detach the node, stop the executor, destroy the node: in that order, whichever of them exist."""
+    if executor is not None:
+        if node is not None:
+            executor.remove_node(node)
+        executor.shutdown()
+    if node is not None:
+        node.destroy_node()
+
+
 @contextlib.contextmanager
 def ros_process(args: list[str] | None) -> Iterator[StopRequest]:
     """rclpy initialised without its signal handlers; SIGINT/SIGTERM set the yielded StopRequest.
@@ -107,12 +117,8 @@ def run_node(make_node: Callable[[], object], argv: list[str] | None = None) -> 
                 print(f"error: {exc}", file=sys.stderr)
                 code = 2
         finally:
-            if node is not None:
-                close = getattr(node, "close", None)
-                if close is not None:
-                    close()
-                executor.remove_node(node)
-            executor.shutdown()
-            if node is not None:
-                node.destroy_node()
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            release(executor, node)
     return code
