@@ -1,6 +1,7 @@
 """``flagbot sweep SCENE --grid KEY=VALUES ... --out DIR`` and ``flagbot sweep-plot DIR``."""
 from __future__ import annotations
 
+import signal
 import sys
 import time
 
@@ -13,6 +14,14 @@ from .task import FRAMEWORKS, SteadySettings, make_task
 #: default cap on simulated time per DER run (s). Design 1 (eta_p L^4/EI ~ 28 s) is steady after ~12-20 s at
 #: 20-250 rpm with the default 2 s window and rtol 1e-3; design 2 after ~6-10 s
 DEFAULT_T_MAX = 60.0
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a batch scheduler's stop, ``kill PID``): handled like Ctrl-C, finished points kept."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated
 
 
 def register(subparsers) -> None:
@@ -100,17 +109,21 @@ def cmd_sweep(args) -> int:
     bar = ProgressBar(len(pending), label="sweep", unit="pts", enabled=not args.quiet and bool(pending))
     t0 = time.perf_counter()
     done = 0
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         for res in run_tasks(tasks, args.engine, args.workers, args.scheduler):
             store.write_point(res)
             done += 1
             bar.update(done, _progress_text(res), force=done == len(pending))
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         bar.close()
         store.close()
-        print(f"interrupted: {done} of {len(pending)} points written to {store.csv_path}; rerun the same command "
+        what = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        print(f"{what}: {done} of {len(pending)} points written to {store.csv_path}; rerun the same command "
               "to compute the rest", file=sys.stderr)
-        return 130
+        return 128 + (signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     bar.close()
     store.close()
     wall = time.perf_counter() - t0

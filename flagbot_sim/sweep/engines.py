@@ -32,9 +32,10 @@ def _single_thread_env() -> None:
 
 
 def _worker_init() -> None:
-    # Ctrl-C goes to the whole process group: only the parent handles it (cancels, then stops the workers);
-    # a worker interrupted mid-task would only turn into a broken pool
+    # Ctrl-C (and a scheduler's SIGTERM) goes to the whole process group: only the parent handles it (cancels,
+    # then kills the workers); a worker stopped mid-task would only turn into a broken pool
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def run_serial(tasks: list[dict]) -> Iterator[dict]:
@@ -70,7 +71,7 @@ def run_local(tasks: list[dict], workers: int) -> Iterator[dict]:
             ex.shutdown(wait=False, cancel_futures=True)
             for p in procs:
                 if p.is_alive():
-                    p.terminate()
+                    p.kill()            # SIGKILL: the workers ignore SIGINT and SIGTERM
             for p in procs:
                 p.join(timeout=5)
 
