@@ -11,6 +11,9 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import pytest  # noqa: E402
 
+# design 2's flagellum (L = 89 mm, mu = 2.125 Pa s, R_d = 1.5 cm) on the clamped_flagellum scene
+DESIGN2_CLAMPED = ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03"]
+
 
 @pytest.fixture(scope="module")
 def ros(request):
@@ -22,3 +25,24 @@ def ros(request):
     yield node
     node.destroy_node()
     rclpy.shutdown()
+
+
+@pytest.fixture(scope="session")
+def clamped_design2():
+    """``run(rpm) -> (scene, summary)``: design 2's clamped flagellum at ``rpm`` after 4 s of simulated time.
+
+    Each rpm is simulated once per session; the scene and summary are shared, so callers must not mutate them.
+    """
+    from flagbot_sim.physics import Simulation
+    from flagbot_sim.scene import load_scene
+    cache = {}
+
+    def run(rpm):
+        rpm = float(rpm)
+        if rpm not in cache:
+            sc = load_scene("clamped_flagellum", [*DESIGN2_CLAMPED, f"motor.omega_rpm={rpm}"])
+            sim = Simulation(sc)
+            sim.run(4.0)
+            cache[rpm] = (sc, sim.summary())
+        return cache[rpm]
+    return run

@@ -89,16 +89,12 @@ def test_reduces_to_linear_beam_theory_with_error_shrinking_as_omega_bar_squared
     assert np.all((ratios > 3.5) & (ratios < 4.5)), ratios
 
 
-def test_sign_conventions_match_the_der():
+def test_sign_conventions_match_the_der(clamped_design2):
     """Positive omega: thrust towards the head (Fx < 0), resisting torque (Tx < 0), tip lagging at z < 0;
     reversing omega mirrors z and Tx and keeps Fx. The DER (design 2's flagellum at +-1 rpm) agrees."""
     for rpm in (1.0, -1.0):
-        sc = load_scene("clamped_flagellum", ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03",
-                                              f"motor.omega_rpm={rpm}"])
+        sc, out = clamped_design2(rpm)
         ref = from_scene(sc)
-        sim = Simulation(sc)
-        sim.run(4.0)
-        out = sim.summary()
         sgn = math.copysign(1.0, rpm)
         assert ref.Fx < 0 and out["Fx"] < 0
         assert sgn * ref.Tx < 0 and sgn * out["Tx"] < 0

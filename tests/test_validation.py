@@ -43,13 +43,9 @@ def linear_beam(scene):
 
 
 @pytest.fixture(scope="module")
-def clamped_linear():
+def clamped_linear(clamped_design2):
     """Design 2's flagellum at 1 rpm: omega_bar = 0.39 <= 0.5, the linear regime."""
-    sc = load_scene("clamped_flagellum", ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03",
-                                          "motor.omega_rpm=1"])
-    sim = Simulation(sc)
-    sim.run(4.0)
-    return sc, sim.summary()
+    return clamped_design2(1)
 
 
 def test_clamped_flagellum_is_in_the_linear_regime(clamped_linear):
@@ -70,13 +66,10 @@ def test_clamped_flagellum_matches_linear_beam_theory(clamped_linear):
     assert out["Tx"] < 0 and abs(-out["Tx"] / (sc.R_d * F_x) - 1.0) < 0.03
 
 
-def test_linear_theory_error_grows_with_omega_bar():
+def test_linear_theory_error_grows_with_omega_bar(clamped_design2):
     """Beyond the linear regime the DER departs from LB: more at omega_bar ~ 4 than at ~ 0.4."""
     errs = []
     for rpm in (1, 10):
-        sc = load_scene("clamped_flagellum", ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03",
-                                              f"motor.omega_rpm={rpm}"])
-        sim = Simulation(sc)
-        sim.run(4.0)
-        errs.append(abs(-sim.summary()["tip"][2] / linear_beam(sc)[0] - 1.0))
+        sc, out = clamped_design2(rpm)
+        errs.append(abs(-out["tip"][2] / linear_beam(sc)[0] - 1.0))
     assert errs[1] > 5 * errs[0]
