@@ -6,7 +6,7 @@ from flagbot_sim.physics import Simulation
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.scene import load_scene
 
-from fd import fd_jacobian, rel_err
+from fd import fd_jacobian, newton_point, rel_err
 
 ALL_FREE = "['inertia','rft','head_drag','head_torque','motor','gravity']"
 
@@ -31,10 +31,7 @@ def moving_robot(scene="design1", extra=()):
 
 @pytest.mark.parametrize("name", ["inertia", "rft", "head_drag", "head_torque", "gravity"])
 def test_effect_jacobian_matches_finite_differences(name):
-    sim = moving_robot()
-    m, s, h = sim.model, sim.state, sim.dt
-    rng = np.random.default_rng(2)
-    q = s.q + h * s.v + 1e-5 * rng.standard_normal(m.ndof)
+    m, s, h, q = newton_point(moving_robot(), noise_seed=2)
     eff = m.effect(name)
 
     def F(qq):
@@ -72,11 +69,7 @@ def test_rft_force_matches_paper_formula_for_a_straight_rod():
 
 def test_full_residual_jacobian_matches_finite_differences():
     """The assembled sparse Jacobian (elastic + all effects, pattern built once) is the residual's derivative."""
-    sim = moving_robot()
-    m, s, h = sim.model, sim.state, sim.dt
-    for d in sim.stepper._drivers:
-        d.begin_step(s, h)
-    q = s.q + h * s.v
+    m, s, h, q = newton_point(moving_robot())
     r, data, _ = m.residual_and_jacobian(q, s, h)
     J = m.pattern.matrix(data).toarray()
     J_fd = fd_jacobian(lambda qq: m.residual(qq, s, h), q, 1e-7)

@@ -11,7 +11,7 @@ from flagbot_sim.physics.elastic import ElasticModel
 from flagbot_sim.physics.network import build_network
 from flagbot_sim.scene import load_scene
 
-from fd import fd_gradient, fd_jacobian, rel_err
+from fd import dense_elastic_hessian, fd_gradient, fd_jacobian, rel_err
 
 
 def make(n=3, which=("stretch", "bend", "twist"), seed=0):
@@ -50,15 +50,7 @@ def energy_grad_hess(net, el, fr):
         return g
 
     def hess(q):
-        f = el.trial_frames(q, fr)
-        H = np.zeros((net.ndof, net.ndof))
-        _, hs = el.stretch_terms(f, True)
-        _, hh = el.hinge_terms(q, f, True)
-        for k in range(len(hs)):
-            H[np.ix_(el.stretch_dofs[k], el.stretch_dofs[k])] += hs[k]
-        for k in range(len(hh)):
-            H[np.ix_(el.hinge_dofs[k], el.hinge_dofs[k])] += hh[k]
-        return H
+        return dense_elastic_hessian(el, q, el.trial_frames(q, fr))
     return E, grad, hess
 
 

@@ -6,6 +6,8 @@ from flagbot_sim.physics import Simulation, kernels
 from flagbot_sim.physics.linsolve import ArrowSolver, SparseLU, flagellum_chains
 from flagbot_sim.scene import load_scene
 
+from fd import newton_point
+
 pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason="numba not installed: only the numpy path exists")
 
 CASES = [("design1", ["robot.n_flagella=3"]), ("design2", ["robot.n_flagella=5"]), ("clamped_flagellum", [])]
@@ -15,11 +17,7 @@ def moving(scene, overrides, t=0.3):
     sim = Simulation(load_scene(scene, overrides + ["scene.effects=['inertia','rft','head_drag','head_torque',"
                                                     "'motor']"] if scene != "clamped_flagellum" else overrides))
     sim.run(t)
-    m, s, h = sim.model, sim.state, sim.dt
-    for d in sim.stepper._drivers:
-        d.begin_step(s, h)
-    q = s.q + h * s.v + 1e-5 * np.random.default_rng(3).standard_normal(m.ndof)
-    return sim, m, s, h, q
+    return (sim, *newton_point(sim, noise_seed=3))
 
 
 @pytest.mark.parametrize("scene,overrides", CASES)
