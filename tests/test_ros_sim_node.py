@@ -7,13 +7,16 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
+from rcl_interfaces.srv import SetParametersAtomically
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
+from flagbot_sim.bag import BagReader
 from flagbot_sim.physics import Simulation
 from flagbot_sim.scene import load_scene
 
@@ -221,6 +224,44 @@ def test_reset_returns_the_robot_to_the_start_and_pause_stops_time(ros, sim_node
     assert t_of(lis.msgs["pose"][-1].header.stamp) >= max(ticks)     # the clock never runs backwards
     call(ros, lis.pause, SetBool.Request(data=False))
     lis.run_until(max(ticks) + 0.5)                                   # and runs again after resuming
+
+
+def set_params_atomically(node, target: str, **values):
+    """Set parameters of another node in one call (one set-parameter callback for all of them)."""
+    cli = node.create_client(SetParametersAtomically, f"/{target}/set_parameters_atomically")
+    req = SetParametersAtomically.Request(parameters=[Parameter(k, value=v).to_parameter_msg()
+                                                      for k, v in values.items()])
+    try:
+        return call(node, cli, req).result
+    finally:
+        node.destroy_client(cli)
+
+
+def test_recording_started_at_runtime_stores_the_values_being_set(ros, sim_node, tmp_path):
+    proc, lis = sim_node
+    start(ros, lis)
+    lis.run_until(0.5)
+    out = str(tmp_path / "runtime.mcap")
+    # record and another parameter in one call: the set-parameter callback runs before rclpy stores either
+    res = set_params_atomically(ros, "sim_node", record=out, max_omega=40.0)
+    assert res.successful, res.reason
+    # sim_node subscribes to its own state topics only to record them: wait for the recorder, then run on
+    spin_until(ros, lambda: {"/clock", "/joint_states", "/odom"} <= {
+        t for t, _ in ros.get_subscriber_names_and_types_by_node("sim_node", "/")}, DISCOVERY_TIMEOUT,
+        "the recorder's subscriptions")
+    lis.run_until(lis.clock + 2.0)
+    (res,) = set_params(ros, "sim_node", record="")
+    assert res.successful, res.reason
+    assert get_params(ros, "sim_node", ["record", "max_omega"]) == {"record": "", "max_omega": 40.0}
+    with BagReader(out) as r:
+        assert r.report.ok, r.report.describe_loss()
+        meta = r.run_metadata()
+        counts = {t: info.count for t, info in r.topics.items()}
+    assert meta.parameters["record"] == out
+    assert meta.parameters["max_omega"] == 40.0
+    assert meta.parameters["scene"] == SCENE[0] and meta.parameters["scene_overrides"] == SCENE[1]
+    for topic in ("/clock", "/joint_states", "/odom", "/head_pose"):
+        assert counts.get(topic, 0) > 5, (topic, counts)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

@@ -61,7 +61,7 @@ class SimNode(Node):
     def __init__(self):
         super().__init__("sim_node")
         declare(self, PARAMS)
-        p = {s.name: self.get_parameter(s.name).value for s in PARAMS}
+        p = self._params()
         self.sim = Simulation(node_scene(p["scene"], p["n_flagella"], p["scene_overrides"]))
         self.publish_rate = p["publish_rate"]
         self.marker_rate = p["marker_rate"]
@@ -100,7 +100,7 @@ class SimNode(Node):
         self._behind = False
         self.recorder = None
         if p["record"]:
-            self._start_recording(p["record"])
+            self._start_recording(p)
         self.timer = self.create_timer(1.0 / self.publish_rate, self._on_timer)
         self.get_logger().info(
             f"flagbot_sim {__version__}: scene {self.sim.scene.scene.name}, n = {self.sim.scene.robot.n_flagella}, "
@@ -115,12 +115,23 @@ class SimNode(Node):
         self._wall0 = time.monotonic()
         self._sim0 = self.sim.time
 
+    def _params(self, new: dict | None = None) -> dict:
+        """Every parameter's value once ``new`` applies.
+
+        A set-parameter callback runs before rclpy stores the new values, so get_parameter alone would still
+        return the old ones there.
+        """
+        p = {s.name: self.get_parameter(s.name).value for s in PARAMS}
+        p.update({k: v for k, v in (new or {}).items() if k in p})
+        return p
+
     # ------------------------------------------------------------------ recording
-    def _start_recording(self, path: str) -> None:
+    def _start_recording(self, params: dict) -> None:
+        """Record to ``params["record"]``; ``params`` (every parameter's value) goes into the metadata."""
         from ..bag import RunMetadata
         from .recorder import Recorder
-        params = {s.name: self.get_parameter(s.name).value for s in PARAMS}
-        params["scene_overrides"] = list(params["scene_overrides"])
+        path = params["record"]
+        params = dict(params, scene_overrides=list(params["scene_overrides"]))
         # the resolved scene (file + overrides + n_flagella), so the recording alone reproduces the run
         meta = RunMetadata(scene_toml=self.sim.scene.to_toml(), parameters=params)
         self.recorder = Recorder(self, path, None, meta)
@@ -210,7 +221,7 @@ class SimNode(Node):
                 self.get_logger().info(msg)
             if new["record"]:
                 try:
-                    self._start_recording(new["record"])
+                    self._start_recording(self._params(new))
                 except (OSError, ValueError, BagError) as exc:
                     return SetParametersResult(successful=False, reason=f"cannot record to {new['record']!r}: {exc}")
         return SetParametersResult(successful=True)
