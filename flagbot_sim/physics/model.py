@@ -130,9 +130,12 @@ class RobotModel:
         self.elastic.accumulate(q, ctx.frames, r, None)
         return r
 
-    def residual_and_jacobian(self, q: np.ndarray, state: State, dt: float):
-        """Residual vector and CSC data of the Jacobian (on ``self.pattern``) at the trial q."""
-        ctx = self.context(q, state, dt)
+    def residual_and_jacobian(self, q: np.ndarray, state: State, dt: float, ctx: StepContext | None = None):
+        """Residual vector and CSC data of the Jacobian (on ``self.pattern``) at the trial q.
+
+        ``ctx`` is the context of this q (from :meth:`context`) if the caller already has it."""
+        if ctx is None:
+            ctx = self.context(q, state, dt)
         idx, val = [], []
         jac_values: list = [None, None]          # elastic blocks are added by the elastic model below
         for eff, (b0, b1) in zip(self.effects, self._effect_block_range):

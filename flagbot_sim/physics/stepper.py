@@ -110,7 +110,7 @@ class Stepper:
             if it == self.max_iterations:
                 return None
             if data is None:                 # the trial point was not converged: now its Jacobian is needed
-                r, data, ctx = model.residual_and_jacobian(q, state, h)
+                r, data, ctx = model.residual_and_jacobian(q, state, h, ctx)
                 r[fixed] = 0.0
             data[self._fix_slots] = 0.0
             data[self._fix_diag] = 1.0
