@@ -2,14 +2,13 @@
 import errno
 import io
 import json
-import os
 import struct
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from bag_testlib import ROOT, TOPIC_TYPES, full_topic, make_message, stamp_ns, to_plain
+from bag_testlib import TOPIC_TYPES, full_topic, make_message, stamp_ns, to_plain
+from cli_helpers import flagbot
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.serialization import serialize_message
@@ -31,12 +30,6 @@ class FakeClock:
 
     def __call__(self):
         return self.t
-
-
-def flagbot(*args):
-    env = dict(os.environ, PYTHONPATH=ROOT)
-    return subprocess.run([sys.executable, "-m", "flagbot_sim", *args], capture_output=True, text=True, env=env,
-                          cwd=ROOT, timeout=120)
 
 
 def write_stream_bag(target, n=1000, rate=100.0, **kw):
@@ -143,10 +136,11 @@ def test_truncation_anywhere_recovers_exactly_the_complete_chunks(tmp_path):
     w = write_stream_bag(src)
     assert w.close().closed
     data = src.read_bytes()
-    chunks = [c for c, _ in _chunks(src)]
+    found = _chunks(src)
+    chunks = [c for c, _ in found]
     assert len(chunks) >= 15     # 10 s at a 0.5 s flush interval
 
-    counts = [n for _, n in _chunks(src)]
+    counts = [n for _, n in found]
     cuts = sorted({20, 200, 600} | {len(data) * i // 37 for i in range(1, 37)} | {len(data) - 1, len(data) - 40})
     cut_file = tmp_path / "cut.mcap"
     previous = -1

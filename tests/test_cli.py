@@ -1,18 +1,8 @@
 """The command line, run as users run it: a separate process."""
 import json
-import os
-import subprocess
-import sys
 
 import pytest
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def flagbot(*args, check=False):
-    env = dict(os.environ, PYTHONPATH=ROOT)
-    return subprocess.run([sys.executable, "-m", "flagbot_sim", *args], capture_output=True, text=True,
-                          env=env, cwd=ROOT, check=check, timeout=600)
+from cli_helpers import flagbot
 
 
 def test_run_json_reports_the_documented_keys():

@@ -7,8 +7,7 @@ import sysconfig
 from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
+from cli_helpers import ROOT
 EXECUTABLES = ["flagbot", "sim_node", "beam_node", "cmd_profile", "record", "replay"]
 
 

@@ -3,17 +3,16 @@ paper's figures have (SpeedVSFlagellaNumber, SpeedVSFlagellaLengthandNumber, com
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import ROOT
 
 from flagbot_sim.cli import main
 from flagbot_sim.sweep.plots import (crossovers, figure_deflection, figure_head_spin, figure_length, figure_speed,
                                      steepest_slope, summarise)
 from flagbot_sim.sweep.store import read_results
 
-ROOT = Path(__file__).resolve().parents[1]
 FIGURES = ("speed_vs_omega.png", "head_spin.png", "deflection.png", "speed_vs_length.png")
 
 
@@ -26,6 +25,12 @@ def row(fw, n, x, y, L=0.1, **kw):
 
 def lines_by_label(fig):
     return {ln.get_label(): ln for ax in fig.axes for ln in ax.get_lines()}
+
+
+def python_c(code, *args):
+    """``python -c CODE ARGS`` in a fresh interpreter from the checkout, matplotlib on Agg."""
+    return subprocess.run([sys.executable, "-c", code, *args], cwd=ROOT, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"})
 
 
 # ---------------------------------------------------------------- from a real sweep directory
@@ -51,8 +56,7 @@ def test_sweep_plot_needs_only_the_csv(sweep_dir, tmp_path):
             "def boom(*a, **k): raise AssertionError('sweep-plot ran a simulation')\n"
             "ph.Simulation.__init__ = boom; bm.balance.solve_balance = boom; bm.solve_balance = boom\n"
             "sys.exit(main(['sweep-plot', sys.argv[1]]))")
-    res = subprocess.run([sys.executable, "-c", code, str(copy)], cwd=ROOT, capture_output=True, text=True,
-                         env={**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"})
+    res = python_c(code, str(copy))
     assert res.returncode == 0, res.stderr
     for L in ("50", "60"):
         for stem in ("speed_vs_omega", "head_spin", "deflection"):
@@ -64,8 +68,7 @@ def test_sweep_plot_needs_only_the_csv(sweep_dir, tmp_path):
     code = ("import sys; from flagbot_sim.sweep.plots import make_all; out = make_all(sys.argv[1]); "
             "bad = [m for m in ('flagbot_sim.physics', 'flagbot_sim.beam') if m in sys.modules]; "
             "assert not bad, bad; print(len(out['figures']))")
-    res = subprocess.run([sys.executable, "-c", code, str(copy)], cwd=ROOT, capture_output=True, text=True,
-                         env={**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"})
+    res = python_c(code, str(copy))
     assert res.returncode == 0 and res.stdout.strip() == "7", res.stderr
 
 
