@@ -2,8 +2,6 @@
 import math
 
 import pytest
-import rclpy
-from rclpy.node import Node
 from std_msgs.msg import Float64
 
 from flagbot_sim.profile import ProfileError, parse
@@ -36,11 +34,10 @@ def test_bad_profiles_say_what_is_wrong(kind, args, word):
         parse(kind, args)
 
 
-def test_cmd_profile_publishes_the_profile_and_exits_at_the_end():
-    rclpy.init()
-    node = Node("profile_test")
+def test_cmd_profile_publishes_the_profile_and_exits_at_the_end(ros):
+    node = ros
     got = []
-    node.create_subscription(Float64, "cmd_omega", lambda m: got.append(m.data), 50)
+    sub = node.create_subscription(Float64, "cmd_omega", lambda m: got.append(m.data), 50)
     proc = NodeProcess("flagbot_sim.ros.cmd_profile", "steps", "1.5:3.0,-2.5:1.0", "--rate", "20", "--exit-at-end",
                        "--quiet")
     try:
@@ -48,8 +45,7 @@ def test_cmd_profile_publishes_the_profile_and_exits_at_the_end():
         spin_until(node, lambda: not proc.alive(), 10, "cmd_profile to exit at the end")
     finally:
         code, out = proc.stop()
-        node.destroy_node()
-        rclpy.shutdown()
+        node.destroy_subscription(sub)
     assert code == 0 and "Traceback" not in out, out
     assert set(got) == {1.5, -2.5} and got.index(-2.5) > got.index(1.5)
     assert all(math.isfinite(x) for x in got)
