@@ -21,7 +21,7 @@ from std_msgs.msg import Float64
 from ..beam import REGIMES, BeamParams, solve_balance
 from ..scene import SceneError
 from . import convert, names
-from .params import ParamSpec, declare, help_text, node_scene, scene_request
+from .params import ParamSpec, declare, help_text, node_scene, refusal, scene_request
 from .runtime import run_node, wants_help
 
 PARAMS = [
@@ -42,8 +42,6 @@ class BeamNode(Node):
         super().__init__("beam_node")
         declare(self, PARAMS)
         p = {s.name: self.get_parameter(s.name).value for s in PARAMS}
-        if p["regime"] not in REGIMES:
-            raise ValueError(f"regime = {p['regime']!r}: choose one of {', '.join(REGIMES)}")
         self.params = BeamParams.from_scene(node_scene(p["scene"], p["n_flagella"], p["scene_overrides"]))
         self.regime = p["regime"]
         self.max_omega = p["max_omega"]
@@ -82,9 +80,9 @@ class BeamNode(Node):
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         new = {p.name: p.value for p in params}
-        if "regime" in new and new["regime"] not in REGIMES:
-            return SetParametersResult(successful=False,
-                                       reason=f"regime = {new['regime']!r}: choose one of {', '.join(REGIMES)}")
+        reason = refusal(PARAMS, new)
+        if reason:
+            return SetParametersResult(successful=False, reason=reason)
         try:
             scene = scene_request(self, new)
             bp = None if scene is None else BeamParams.from_scene(scene)

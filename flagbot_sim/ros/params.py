@@ -52,8 +52,15 @@ class ParamSpec:
         unit = f" {self.unit}" if self.unit else ""
         return f"  {self.name} ({self.type_name}, default {self.default!r}{unit}){rng}{ch}\n      {self.description}"
 
+    def refusal(self, value) -> str | None:
+        """Why ``value`` is refused, or None. Only ``choices`` are checked here: rclpy enforces ``range``."""
+        if self.choices and value not in self.choices:
+            return f"{self.name} = {value!r}: choose one of {', '.join(self.choices)}"
+        return None
+
 
 def declare(node, specs: list[ParamSpec]) -> None:
+    """Declare every parameter; raises ValueError when a start value is not one of its spec's choices."""
     for s in specs:
         if isinstance(s.default, list):
             # an empty list cannot carry its element type: declare uninitialised, then set a typed []
@@ -64,6 +71,19 @@ def declare(node, specs: list[ParamSpec]) -> None:
                 node.set_parameters([Parameter(s.name, Parameter.Type.STRING_ARRAY, list(s.default))])
         else:
             node.declare_parameter(s.name, s.default, s.descriptor())
+        reason = s.refusal(node.get_parameter(s.name).value)
+        if reason:
+            raise ValueError(reason)
+
+
+def refusal(specs: list[ParamSpec], new: dict) -> str | None:
+    """For a set-parameter callback: why the new values are refused (a value outside its choices), or None."""
+    by_name = {s.name: s for s in specs}
+    for name, value in new.items():
+        reason = by_name[name].refusal(value) if name in by_name else None
+        if reason:
+            return reason
+    return None
 
 
 def help_text(prog: str, summary: str, specs: list[ParamSpec], topics: str = "") -> str:
