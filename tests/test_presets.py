@@ -1,9 +1,11 @@
 """The accuracy presets deliver the accuracy docs/accuracy.md states, measured against an independent reference:
-the steady clamped flagellum from the geometrically exact rod equations (flagbot_sim.reference.rod_bvp)."""
+the steady clamped flagellum from the geometrically exact rod equations (flagbot_sim.reference.rod_bvp).
+
+The case, its reference and its outputs are the accuracy study's own (flagbot_sim.bench.accuracy)."""
 import pytest
 
+from flagbot_sim.bench.accuracy import CASES, outputs_of, rod_bvp_reference
 from flagbot_sim.physics import Simulation
-from flagbot_sim.reference.rod_bvp import from_scene
 from flagbot_sim.scene import load_scene
 
 # the study measured 2.05%, 0.78% and 0.38% (largest relative error over Fx, Tx and the tip, vs Richardson)
@@ -12,16 +14,15 @@ BOUNDS = {"fast": 0.03, "default": 0.012, "accurate": 0.006}
 
 @pytest.fixture(scope="module")
 def reference():
-    sol = from_scene(load_scene("clamped_flagellum", ["motor.omega_rpm=10"]))
-    return {"Fx": sol.Fx, "Tx": sol.Tx, "tip_y": float(sol.tip[1]), "tip_z": float(sol.tip[2])}
+    return rod_bvp_reference("clamped")
 
 
 def errors(preset, ref):
-    sim = Simulation(load_scene("clamped_flagellum", ["motor.omega_rpm=10", f"scene.preset='{preset}'"]))
+    scene_name, overrides = CASES["clamped"]
+    sim = Simulation(load_scene(scene_name, [*overrides, f"scene.preset='{preset}'"]))
     sim.run(25.0)
-    s = sim.summary()
-    assert s["steady"]
-    got = {"Fx": s["Fx"], "Tx": s["Tx"], "tip_y": s["tip"][1], "tip_z": s["tip"][2]}
+    assert sim.summary()["steady"]
+    got = outputs_of(sim)
     return max(abs(got[k] - ref[k]) / abs(ref[k]) for k in ref)
 
 
