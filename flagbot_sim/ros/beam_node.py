@@ -21,7 +21,7 @@ from std_msgs.msg import Float64
 from ..beam import REGIMES, BeamParams, solve_balance
 from ..scene import SceneError
 from . import convert, names
-from .params import ParamSpec, declare, help_text, node_scene, refusal, scene_request
+from .params import ParamSpec, command_refusal, declare, help_text, node_scene, refusal, scene_request
 from .runtime import run_node, wants_help
 
 PARAMS = [
@@ -69,9 +69,9 @@ class BeamNode(Node):
     # ------------------------------------------------------------------ input
     def _on_cmd(self, msg: Float64) -> None:
         w = msg.data
-        if not math.isfinite(w) or abs(w) > self.max_omega:
+        why = command_refusal(w, self.max_omega)
+        if why is not None:
             self.rejected += 1
-            why = "not a finite number" if not math.isfinite(w) else f"|omega| exceeds max_omega = {self.max_omega:g}"
             self.get_logger().warn(f"rejected {names.CMD_OMEGA} = {w!r} rad/s: {why}", throttle_duration_sec=2.0)
             return
         with self._lock:

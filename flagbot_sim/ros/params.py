@@ -1,6 +1,7 @@
 """Node parameters declared from one spec list, so the descriptors, `--help` and msg_docs/ say the same thing."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -83,6 +84,15 @@ def refusal(specs: list[ParamSpec], new: dict) -> str | None:
         reason = by_name[name].refusal(value) if name in by_name else None
         if reason:
             return reason
+    return None
+
+
+def command_refusal(omega: float, max_omega: float) -> str | None:
+    """Why a motor command (cmd_omega, rad/s) is rejected: not finite, or |omega| > max_omega; None if accepted."""
+    if not math.isfinite(omega):
+        return "not a finite number"
+    if abs(omega) > max_omega:
+        return f"|omega| exceeds max_omega = {max_omega:g} rad/s"
     return None
 
 

@@ -28,7 +28,7 @@ from ..bag import BagError
 from ..physics import Simulation, StepFailed
 from ..scene import SceneError
 from . import convert, names
-from .params import ParamSpec, declare, help_text, node_scene, scene_request
+from .params import ParamSpec, command_refusal, declare, help_text, node_scene, scene_request
 from .runtime import run_node, wants_help
 
 PARAMS = [
@@ -154,11 +154,8 @@ class SimNode(Node):
     # ------------------------------------------------------------------ callbacks
     def _on_cmd(self, msg: Float64) -> None:
         w = msg.data
-        if not math.isfinite(w):
-            reason = "not a finite number"
-        elif abs(w) > self.max_omega:
-            reason = f"|omega| exceeds max_omega = {self.max_omega:g} rad/s"
-        else:
+        reason = command_refusal(w, self.max_omega)
+        if reason is None:
             if self.sim.model.driver is not None:
                 self.sim.set_omega(w)
             return
