@@ -278,6 +278,10 @@ class Clamp(Effect):
         self.prescribed_dofs = np.concatenate([net.node_dofs(self.nodes).ravel(), net.edge_dof(self.edges)])
         self._trial = None
 
+    #: compiled kernel when numba is available (set False on an instance for the numpy reference). The numpy
+    #: path costs ~55 us more per sub-step (numpy call overhead on two edges), ~15-20% of a clamped step.
+    use_kernels = kernels.AVAILABLE
+
     def initial_state(self):
         return {"clamp_angle": 0.0}
 
@@ -295,7 +299,7 @@ class Clamp(Effect):
         t, _ = normalize(x[e[:, 1]] - x[e[:, 0]])
         fr = state.frames
         theta_old = state.q[self._theta_dofs]
-        if kernels.AVAILABLE:
+        if self.use_kernels:
             theta = np.empty(len(self.edges))
             kernels.clamp_twist(fr.d1[self.edges], fr.t[self.edges], t, self.m1_0 @ R.T, theta_old, theta)
         else:
