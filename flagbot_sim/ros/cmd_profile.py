@@ -22,7 +22,7 @@ from std_msgs.msg import Float64
 from ..profile import ProfileError, parse
 from ..scene import RPM
 from . import names
-from .runtime import run_node
+from .runtime import run_node, user_args
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,8 +72,7 @@ class ProfileNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
-    user = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
-    args = build_parser().parse_args(user)
+    args = build_parser().parse_args(user_args(argv))
     if not (0.1 <= args.rate <= 1000.0):
         print(f"error: --rate must be within [0.1, 1000] Hz, got {args.rate:g}", file=sys.stderr)
         return 2

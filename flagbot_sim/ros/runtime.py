@@ -18,6 +18,7 @@ from typing import Callable, Iterator
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 SLICE = 0.1     # s: longest wait before a stop request is noticed
 
@@ -90,9 +91,14 @@ def ros_process(args: list[str] | None) -> Iterator[StopRequest]:
         rclpy.try_shutdown()
 
 
+def user_args(argv: list[str]) -> list[str]:
+    """The program's own arguments: ``argv`` without argv[0] and without its ``--ros-args ... [--]`` sections."""
+    return remove_ros_args(argv)[1:]
+
+
 def wants_help(argv: list[str]) -> bool:
-    """-h/--help before any --ros-args."""
-    user = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
+    """-h/--help among the program's own arguments (not a ROS argument)."""
+    user = user_args(argv)
     return "-h" in user or "--help" in user
 
 
