@@ -42,15 +42,18 @@ def cmd_run(args) -> int:
         raise SceneError(f"--duration must be a positive number of seconds, got {duration!r}")
     sim = Simulation(scene)
     bar = ProgressBar(duration, label=scene.scene.name, enabled=not args.json and not args.quiet)
-    n_steps = max(1, int(round(duration / scene.time.dt)))
+    n_steps = max(1, int(round(duration / scene.time.dt)))     # as Simulation.run counts them
+
+    def progress(s) -> None:
+        k = s.steps - 1
+        if k % 10 == 0 or k == n_steps - 1:
+            ob = s.observer
+            bar.update(s.time, f"newton {s.last_stats.newton_iterations}  w_h {ob.rate_h:+.3f}  "
+                               f"w_t {ob.rate_t:+.3f} rad/s  v {1e3 * ob.speed:+.3f} mm/s")
+
     error = None
     try:
-        for k in range(n_steps):
-            st = sim.step()
-            if k % 10 == 0 or k == n_steps - 1:
-                ob = sim.observer
-                bar.update(sim.time, f"newton {st.newton_iterations}  w_h {ob.rate_h:+.3f}  w_t {ob.rate_t:+.3f} "
-                                     f"rad/s  v {1e3 * ob.speed:+.3f} mm/s")
+        sim.run(duration, callback=progress)
     except StepFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
