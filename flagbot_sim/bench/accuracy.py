@@ -151,13 +151,14 @@ def study(cases: list[str], dts=DTS, edges=EDGES, out_dir: Path = Path("out/accu
         refs = {"richardson": ref}
         if bvp and case == "clamped":
             refs["rod_bvp"] = rod_bvp_reference(case)
-        grid_runs = runs[:-3]
+        grid_runs = runs[:-3]                                  # without the Richardson reference runs
         for r in runs:
             r.rel_err = {k: abs(r.outputs[k] - ref[k]) / max(abs(ref[k]), 1e-300) for k in ref}
             r.max_err = max(r.rel_err.values()) if r.steady else math.inf
         orders = {k: {"dt": observed_order(grid_runs, ref, k, "dt"), "edge": observed_order(grid_runs, ref, k, "edge")}
                   for k in ref}
-        results[case] = {"runs": runs, "refs": refs, "orders": orders, "pareto": pareto(grid_runs)}
+        results[case] = {"runs": runs, "grid": grid_runs, "refs": refs, "orders": orders,
+                         "pareto": pareto(grid_runs)}
         write_csv(out_dir / f"{case}.csv", runs, refs)
     return results
 
@@ -192,7 +193,7 @@ def plot(results: dict, png: Path) -> None:
     n = len(results)
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.0), squeeze=False)
     for ax, (case, res) in zip(axes[0], results.items()):
-        runs = [r for r in res["runs"][:-3] if math.isfinite(r.max_err)]
+        runs = [r for r in res["grid"] if math.isfinite(r.max_err)]
         edges = sorted({r.edge for r in runs})
         for i, e in enumerate(edges):
             rs = sorted((r for r in runs if r.edge == e), key=lambda r: r.dt)
@@ -213,7 +214,7 @@ def plot(results: dict, png: Path) -> None:
     plt.close(fig)
 
 
-def markdown(results: dict, presets: dict | None = None) -> str:
+def markdown(results: dict) -> str:
     lines = []
     for case, res in results.items():
         keys = list(res["refs"]["richardson"])
@@ -229,7 +230,7 @@ def markdown(results: dict, presets: dict | None = None) -> str:
         lines += ["", "| dt (s) | edge (mm) | steady at (s) | wall (s) | real-time factor | Newton it/step | "
                   + " | ".join(f"err {k}" for k in keys) + " | max err |",
                   "|---|---|---|---|---|---|" + "---|" * len(keys) + "---|"]
-        for r in sorted(res["runs"][:-3], key=lambda r: (r.edge, -r.dt)):
+        for r in sorted(res["grid"], key=lambda r: (r.edge, -r.dt)):
             errs = " | ".join(f"{100 * r.rel_err[k]:.3f}%" for k in keys)
             flag = "" if r.steady else " (not steady)"
             lines.append(f"| {r.dt:g} | {1e3 * r.edge:.3f} | {r.sim_time:.1f}{flag} | {r.wall:.1f} | {r.rtf:.1f} | "
