@@ -112,16 +112,14 @@ def scaling(edges_per_flagellum=(5, 10, 20, 40, 80, 160, 330), n: int = 3, steps
     return rows, fit_step, fit_newton
 
 
-PRESET_CASES = [("clamped_flagellum", 1, ["motor.omega_rpm=10"]), ("design1", 2, []), ("design1", 3, []),
-                ("design2", 2, []), ("design2", 3, [])]
-
-
 def preset_table(repeat: int = 3, warmup: float = 3.0, span: float = 5.0) -> str:
     """Real-time factor of each accuracy preset (median of ``repeat``), for docs/accuracy.md."""
     from ..scene import PRESETS
+    from .accuracy import CASES as ACCURACY_CASES     # the cases the presets' accuracy was measured on
     lines = ["real-time factor by accuracy preset (omega_T = 100 rpm; clamped flagellum at 10 rpm; median of "
              f"{repeat})", f"{'case':20s} " + " ".join(f"{p:>12s}" for p in PRESETS)]
-    for scene, n, extra in PRESET_CASES:
+    for scene, extra in ACCURACY_CASES.values():
+        n = load_scene(scene, extra).robot.n_flagella
         row = []
         for preset in PRESETS:
             rtf = sorted(measure(scene, n, warmup, span, extra=[*extra, f"scene.preset='{preset}'"])["rtf"]
