@@ -822,6 +822,23 @@ def _open_bytes(path: str | os.PathLike) -> tuple[Path, Any, int]:
     return p, buf, size
 
 
+#: a recorder's executor can take messages slightly out of arrival order: log-time order is restored within this
+_REORDER_WINDOW_NS = 2_000_000_000
+
+
+def _log_time_order(msgs: Iterable[BagMessage], window_ns: int) -> Iterator[BagMessage]:
+    """``msgs`` sorted by log time with a bounded reorder window (ties keep their order)."""
+    heap: list = []
+    newest = None
+    for k, m in enumerate(msgs):
+        heapq.heappush(heap, (m.log_time_ns, k, m))
+        newest = m.log_time_ns if newest is None else max(newest, m.log_time_ns)
+        while heap and heap[0][0] < newest - window_ns:
+            yield heapq.heappop(heap)[2]
+    while heap:
+        yield heapq.heappop(heap)[2]
+
+
 class BagReader:
     """Read an MCAP recording record by record, tolerating truncation and corruption.
 
@@ -1050,42 +1067,36 @@ class BagReader:
         return RunMetadata.from_record(rec) if rec is not None else None
 
     def messages(self, topics: Iterable[str] | None = None, *, start_ns: int | None = None,
-                 end_ns: int | None = None, order: str = "log_time", reorder_window_ns: int = 2_000_000_000
+                 end_ns: int | None = None, order: str = "log_time", reorder_window_ns: int = _REORDER_WINDOW_NS
                  ) -> Iterator[BagMessage]:
         """Stream messages, optionally of some topics and a log-time range [start_ns, end_ns).
 
         ``order='log_time'`` sorts with a bounded reorder window (a recorder's executor can take messages slightly
         out of arrival order); ``order='file'`` yields them as stored. Damage is skipped; see :attr:`report`.
         """
-        want = set(topics) if topics is not None else None
-        rep = ScanReport(str(self.path), self.size)  # scratch report; the cached one comes from a full pass
-
-        def selected():
-            for kind, rec in self._records(rep):
-                if kind != "message":
-                    continue
-                if want is not None and rec.topic not in want:
-                    continue
-                if start_ns is not None and rec.log_time_ns < start_ns:
-                    continue
-                if end_ns is not None and rec.log_time_ns >= end_ns:
-                    continue
-                yield rec
-
+        selected = self._stored_messages(topics, start_ns, end_ns)
         if order == "file":
-            yield from selected()
+            yield from selected
             return
         if order != "log_time":
             raise ValueError(f"order must be 'log_time' or 'file', not {order!r}")
-        heap: list = []
-        newest = None
-        for k, m in enumerate(selected()):
-            heapq.heappush(heap, (m.log_time_ns, k, m))
-            newest = m.log_time_ns if newest is None else max(newest, m.log_time_ns)
-            while heap and heap[0][0] < newest - reorder_window_ns:
-                yield heapq.heappop(heap)[2]
-        while heap:
-            yield heapq.heappop(heap)[2]
+        yield from _log_time_order(selected, reorder_window_ns)
+
+    def _stored_messages(self, topics: Iterable[str] | None, start_ns: int | None = None,
+                         end_ns: int | None = None) -> Iterator[BagMessage]:
+        """Messages of ``topics`` (None: all) in [start_ns, end_ns), in file order."""
+        want = set(topics) if topics is not None else None
+        rep = ScanReport(str(self.path), self.size)  # scratch report; the cached one comes from a full pass
+        for kind, rec in self._records(rep):
+            if kind != "message":
+                continue
+            if want is not None and rec.topic not in want:
+                continue
+            if start_ns is not None and rec.log_time_ns < start_ns:
+                continue
+            if end_ns is not None and rec.log_time_ns >= end_ns:
+                continue
+            yield rec
 
     def decoder(self, type_name_or_msg) -> Callable[[bytes], Any]:
         """A function bytes -> decoded message (mcap_ros2's dynamic classes) for a type or a BagMessage."""
@@ -1109,11 +1120,20 @@ class BagReader:
 
     def decoded(self, topic: str) -> list[tuple[int, int, Any]]:
         """All messages of one topic as (log_time_ns, publish_time_ns, decoded message), in log-time order."""
-        out = []
-        dec = None
-        for m in self.messages([topic]):
-            dec = dec or self.decoder(m)
-            out.append((m.log_time_ns, m.publish_time_ns, dec(m.data)))
+        return self.decoded_many([topic])[topic]
+
+    def decoded_many(self, topics: Iterable[str]) -> dict[str, list[tuple[int, int, Any]]]:
+        """:meth:`decoded` of several topics in one pass over the file: topic -> rows (empty when absent).
+
+        Each topic is put in log-time order on its own, so its rows are exactly what :meth:`decoded` gives."""
+        stored: dict[str, list[BagMessage]] = {t: [] for t in topics}
+        for m in self._stored_messages(stored):
+            stored[m.topic].append(m)
+        out = {}
+        for topic, msgs in stored.items():
+            dec = self.decoder(msgs[0]) if msgs else None
+            out[topic] = [(m.log_time_ns, m.publish_time_ns, dec(m.data))
+                          for m in _log_time_order(msgs, _REORDER_WINDOW_NS)]
         return out
 
     def close(self) -> None:
@@ -1222,6 +1242,11 @@ class SimTimeMap:
         self.log_ns = log_ns
         self.clock_ns = clock_ns
 
+    @classmethod
+    def from_rows(cls, rows: Iterable[tuple[int, int, Any]]) -> "SimTimeMap":
+        """From decoded /clock messages (:meth:`BagReader.decoded` rows)."""
+        return cls([lt for lt, _, _ in rows], [m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _, m in rows])
+
     def __bool__(self):
         return bool(self.log_ns)
 
@@ -1234,11 +1259,7 @@ class SimTimeMap:
 def sim_time_map(reader: BagReader, clock_topic: str = "/clock") -> SimTimeMap:
     if clock_topic not in reader.topics:
         return SimTimeMap([], [])
-    log, clk = [], []
-    for lt, _, m in reader.decoded(clock_topic):
-        log.append(lt)
-        clk.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec)
-    return SimTimeMap(log, clk)
+    return SimTimeMap.from_rows(reader.decoded(clock_topic))
 
 
 def read_run(path: str | os.PathLike, namespace: str | None = None) -> RunRecord:
@@ -1249,8 +1270,9 @@ def read_run(path: str | os.PathLike, namespace: str | None = None) -> RunRecord
         cmds = []
         topic = find_topic(r.topics, "cmd_omega", namespace)
         if topic is not None:
-            smap = sim_time_map(r)
-            for lt, _, m in r.decoded(topic):
+            rows = r.decoded_many([topic, "/clock"])
+            smap = SimTimeMap.from_rows(rows["/clock"])
+            for lt, _, m in rows[topic]:
                 cmds.append(((lt - rep.start_ns) * 1e-9, float(smap(lt)) if smap else None, float(m.data)))
         return RunRecord(str(r.path), meta, rep.start_ns, cmds, rep)
 

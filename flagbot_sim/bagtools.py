@@ -17,7 +17,7 @@ import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .bag import (BagError, BagReader, find_topic, namespace_of, recover, sim_time_map)
+from .bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of, recover
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -164,16 +164,13 @@ def _initial_omega(meta) -> float | None:
         return None
 
 
-def _motor_joint_steps(reader, topics, ns) -> list:
+def _motor_joint_steps(js_rows) -> list:
     """Exact command steps from the sim_node's ``motor`` joint (command in force and its integral, stamped in
-    simulation time); [] when the recording has no such joint."""
+    simulation time) in the decoded ``joint_states`` rows; [] when the recording has no such joint."""
     import numpy as np
 
     from .resim import command_schedule
-    topic = find_topic(topics, "joint_states", ns)
-    if topic is None:
-        return []
-    rows = [m for _, _, m in reader.decoded(topic)]
+    rows = [m for _, _, m in js_rows]
     if not rows or "motor" not in rows[0].name:
         return []
     k = rows[0].name.index("motor")
@@ -204,7 +201,10 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
                 if t is not None:
                     ns = namespace_of(t, name)
                     break
-        smap = sim_time_map(r)
+        series_topics = {name: find_topic(topics, name, ns) for name in ("omega_h", "omega_t", "speed")}
+        js_topic = find_topic(topics, "joint_states", ns) if time_axis != "log" else None
+        rows = r.decoded_many([t for t in (*series_topics.values(), cmd_topic, js_topic, "/clock") if t is not None])
+        smap = SimTimeMap.from_rows(rows["/clock"])
         use_sim = (time_axis == "sim") or (time_axis == "auto" and bool(smap))
         if use_sim and not smap:
             raise BagError("--time sim needs a recorded /clock")
@@ -215,23 +215,22 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
             return smap(log_ns) if use_sim else (log_ns - t0) * 1e-9
 
         series = {}
-        for name in ("omega_h", "omega_t", "speed"):
-            topic = find_topic(topics, name, ns)
+        for name, topic in series_topics.items():
             if topic is None:
                 series[name] = (np.zeros(0), np.zeros(0))
                 continue
-            rows = r.decoded(topic)
-            series[name] = (axis([lt for lt, _, _ in rows]), np.array([float(m.data) for _, _, m in rows]))
+            got = rows[topic]
+            series[name] = (axis([lt for lt, _, _ in got]), np.array([float(m.data) for _, _, m in got]))
         cmds = []
         if cmd_topic is not None:
-            rows = r.decoded(cmd_topic)
-            cmds = list(zip(axis([lt for lt, _, _ in rows]).tolist(), [float(m.data) for _, _, m in rows]))
+            cmds = list(zip(axis([lt for lt, _, _ in rows[cmd_topic]]).tolist(),
+                            [float(m.data) for _, _, m in rows[cmd_topic]]))
         starts = [s[0][0] for s in series.values() if len(s[0])]
         ends = [s[0][-1] for s in series.values() if len(s[0])]
         t_first = min(starts) if starts else (cmds[0][0] if cmds else 0.0)
         t_last = max(ends) if ends else (cmds[-1][0] if cmds else 0.0)
         # steps: [time, omega_T, source]; the initial speed applies before the first command
-        bounds = _motor_joint_steps(r, topics, ns) if use_sim else []
+        bounds = _motor_joint_steps(rows[js_topic]) if use_sim and js_topic is not None else []
         if not bounds:
             w0 = _initial_omega(meta)
             if w0 is not None and (not cmds or cmds[0][0] > t_first):

@@ -80,8 +80,9 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
         pose_topic = find_topic(r.topics, "head_pose", namespace)
         if js_topic is None or pose_topic is None:
             raise ResimulationError(f"{path}: needs the joint_states and head_pose topics")
-        js = [m for _, _, m in r.decoded(js_topic)]
-        poses = {round(_stamp(m), 9): m.pose.position for _, _, m in r.decoded(pose_topic)}
+        rows = r.decoded_many([js_topic, pose_topic])
+        js = [m for _, _, m in rows[js_topic]]
+        poses = {round(_stamp(m), 9): m.pose.position for _, _, m in rows[pose_topic]}
         notes = [] if r.report.ok else [f"the recording is damaged: {r.report.describe_loss()}"]
     if not js or "motor" not in js[0].name:
         raise ResimulationError(f"{path}: joint_states has no 'motor' joint (recorded by an older version?)")
