@@ -15,8 +15,9 @@ import sys
 import tempfile
 import time
 
+from ..beam import REGIMES
 from ..progress import ProgressBar
-from ..scene import RPM, load_scene
+from ..scene import RPM, load_scene, node_overrides
 
 
 def register(sub) -> None:
@@ -25,7 +26,7 @@ def register(sub) -> None:
     p.add_argument("--n", type=int, default=0, help="number of flagella (default: the scene's)")
     p.add_argument("--rpm", default="50,100,150", help="omega_T steps in rpm (default 50,100,150)")
     p.add_argument("--step-duration", type=float, default=20.0, help="simulated seconds per step (default 20)")
-    p.add_argument("--regime", default="nlb", choices=["lb", "nlb-nohead", "nlb"], help="beam regime")
+    p.add_argument("--regime", default="nlb", choices=REGIMES, help="beam regime")
     p.add_argument("--real-time-factor", type=float, default=0.0, help="0 = as fast as possible (default)")
     p.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: one derived from the pid)")
     p.add_argument("--record", default=None, help="also record the run to this MCAP file")
@@ -33,12 +34,19 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_demo)
 
 
-def _child_env(domain: int) -> dict:
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(domain)
-    env.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="flagbot_demo_log_"))
-    return env
+def _use_demo_environment(domain: int) -> None:
+    """DDS on localhost in the demo's own domain, for the monitor in this process and the nodes it starts
+    (they inherit the environment). A log directory is made only when ROS_LOG_DIR is not set."""
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    if "ROS_LOG_DIR" not in os.environ:
+        os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="flagbot_demo_log_")
+
+
+def _check_alive(procs: dict) -> None:
+    dead = [k for k, p in procs.items() if p.poll() is not None]
+    if dead:
+        raise RuntimeError(f"{', '.join(dead)} stopped early")
 
 
 def step_table(samples: dict, segments: list, beam: list) -> list[dict]:
@@ -74,14 +82,13 @@ def format_table(rows: list[dict], scene: str, n: int, regime: str) -> str:
 
 def cmd_demo(args) -> int:
     from ..profile import parse
-    scene = load_scene(args.scene, [f"robot.n_flagella={args.n}"] if args.n else [])
+    scene = load_scene(args.scene, node_overrides(args.n, []))
     n = scene.robot.n_flagella
     rpms = [float(x) for x in args.rpm.split(",") if x.strip()]
     spec = ",".join(f"{r:g}:{args.step_duration:g}" for r in rpms)
     profile = parse("steps", [spec], rpm=True)
     domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
-    env = _child_env(domain)
-    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR")})
+    _use_demo_environment(domain)
     py = [sys.executable, "-m"]
     common = ["-p", f"scene:={args.scene}", "-p", f"n_flagella:={n}"]
     cmds = {
@@ -94,7 +101,7 @@ def cmd_demo(args) -> int:
     if args.record:   # sim_node's own recorder: the resolved scene and every parameter go into the file
         cmds["sim_node"] += ["-p", f"record:={os.path.abspath(args.record)}"]
     logs = {k: tempfile.TemporaryFile(mode="w+") for k in cmds}
-    procs = {k: subprocess.Popen(c, env=env, stdout=logs[k], stderr=subprocess.STDOUT) for k, c in cmds.items()}
+    procs = {k: subprocess.Popen(c, stdout=logs[k], stderr=subprocess.STDOUT) for k, c in cmds.items()}
     try:
         samples, beam = _monitor(profile.duration, procs, args.json, recording=bool(args.record))
     finally:
@@ -196,17 +203,13 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
             rclpy.spin_once(node, timeout_sec=0.1)
             if time.monotonic() - wall0 > 60:
                 raise RuntimeError("the nodes did not appear within 60 s")
-            dead = [k for k, p in procs.items() if p.poll() is not None]
-            if dead:
-                raise RuntimeError(f"{', '.join(dead)} stopped early")
+            _check_alive(procs)
         future = pause.call_async(SetBool.Request(data=False))
         rclpy.spin_until_future_complete(node, future, timeout_sec=10)
         while rclpy.ok() and state["clock"] < duration + 0.2:
             rclpy.spin_once(node, timeout_sec=0.05)
             bar.update(min(state["clock"], duration), f"omega_T = {state['cmd']:.3f} rad/s")
-            dead = [k for k, p in procs.items() if p.poll() is not None]
-            if dead:
-                raise RuntimeError(f"{', '.join(dead)} stopped early")
+            _check_alive(procs)
             if time.monotonic() - wall0 > 60 + 20 * duration:
                 raise RuntimeError("the simulation did not advance: no /clock from sim_node")
     finally:
