@@ -121,10 +121,10 @@ class ArrowSolver:
             cc=np.concatenate(self.couple_cols).astype(np.int64),
             cr_ptr=np.cumsum([0] + [len(c) for c in self.couple_rows]).astype(np.int64),
             cr=np.concatenate(self.couple_rows).astype(np.int64))
-        self._ipiv_off = np.cumsum([0] + [len(c) for c in chains]).astype(np.int64)
+        # start of chain i in any per-chain-DOF concatenation: the chain DOFs and the band pivots alike
+        self._chain_ptr = np.cumsum([0] + [len(c) for c in self.chains]).astype(np.int64)
         self._Y_off = np.cumsum([0] + [len(c) * len(cc) for c, cc in zip(chains, self.couple_cols)]).astype(np.int64)
         self._chain_dofs = np.concatenate(self.chains).astype(np.int64)
-        self._chain_ptr = np.cumsum([0] + [len(c) for c in self.chains]).astype(np.int64)
         self.compiled = kernels.AVAILABLE
 
     def factor(self, data: np.ndarray) -> None:
@@ -135,12 +135,12 @@ class ArrowSolver:
     def _factor_compiled(self, data: np.ndarray) -> None:
         buf = np.zeros(self.size)
         buf[self.dest] = data
-        ipiv = np.empty(self._ipiv_off[-1], np.int64)
+        ipiv = np.empty(self._chain_ptr[-1], np.int64)
         Y = np.empty(self._Y_off[-1])
         k = self._k
         bad = kernels.arrow_factor(buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["B_off"],
                                    k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], self._D_off,
-                                   len(self.core), ipiv, self._ipiv_off, Y, self._Y_off)
+                                   len(self.core), ipiv, self._chain_ptr, Y, self._Y_off)
         if bad:
             raise SingularJacobian(f"flagellum block {bad - 1} is singular")
         nc = len(self.core)
@@ -154,7 +154,7 @@ class ArrowSolver:
         k = self._k
         x = np.empty(self.ndof)
         kernels.arrow_solve(buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
-                            k["cc"], k["cr_ptr"], k["cr"], self._D_off, len(self.core), ipiv, self._ipiv_off, Y,
+                            k["cc"], k["cr_ptr"], k["cr"], self._D_off, len(self.core), ipiv, self._chain_ptr, Y,
                             self._Y_off, core_piv, self._chain_dofs, self._chain_ptr, self.core, b, x)
         return x
 
