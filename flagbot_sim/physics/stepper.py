@@ -52,7 +52,6 @@ class Stepper:
         self._drivers = model.drivers
         self._prescribers = [e for e in model.effects if hasattr(e, "prescribed_dofs")]
         self.solver = make_solver(model, num.linear_solver)
-        net = model.net
         # (front, centre, back) points of the robot axis for the predictor: the head, or the plate centre alone
         self._axis_nodes = (tuple(net.head_nodes) if len(net.head_nodes) else (net.joint_node,) * 3)
 
@@ -94,7 +93,7 @@ class Stepper:
         for d in self._drivers:
             d.begin_step(state, h)
         fixed = self.fixed
-        q = self._start(state, self.predict(state, h), h)
+        q = self._start(self.predict(state, h))
         r, data, ctx = model.residual_and_jacobian(q, state, h)
         r[fixed] = 0.0
         merit_start = None
@@ -170,7 +169,7 @@ class Stepper:
                                     q[: 3 * N].reshape(N, 3))
         return q
 
-    def _start(self, state: State, q: np.ndarray, h: float) -> np.ndarray:
+    def _start(self, q: np.ndarray) -> np.ndarray:
         """The predictor with the prescribed DOFs (clamp) set to their values at the end of the step."""
         for e in self._prescribers:
             idx, val = e.prescribed()
