@@ -13,7 +13,7 @@ import math
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, PoseStamped, Quaternion, Vector3
+from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -58,14 +58,17 @@ def pose_msg(t: float, frame: str, position_w, R_w) -> PoseStamped:
     return m
 
 
-def odometry_msg(t: float, frame: str, child: str, position_w, R_w, v_w, omega_w) -> Odometry:
-    """Pose in the fixed frame; twist in the head body frame (linear.x = forward speed, angular.x = spin)."""
+def odometry_msg(t: float, frame: str, child: str, pose: Pose, R_w, v_w, omega_w) -> Odometry:
+    """Pose in the fixed frame; twist in the head body frame (linear.x = forward speed, angular.x = spin).
+
+    ``pose`` is the head pose of the same instant, normally ``pose_msg(...).pose`` (used as is, not copied), and
+    ``R_w`` its rotation matrix, which turns the world-frame velocities into the body frame.
+    """
     m = Odometry()
     m.header.stamp = stamp(t)
     m.header.frame_id = frame
     m.child_frame_id = child
-    m.pose.pose.position = _point(position_w)
-    m.pose.pose.orientation = _quat(quaternion_from_matrix(R_w))
+    m.pose.pose = pose
     vb = R_w.T @ np.asarray(v_w)
     wb = R_w.T @ np.asarray(omega_w)
     m.twist.twist.linear = Vector3(x=float(vb[0]), y=float(vb[1]), z=float(vb[2]))

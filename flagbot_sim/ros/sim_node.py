@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections import deque
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -96,7 +97,7 @@ class SimNode(Node):
         self._anchor()
         self._last_marker = -math.inf
         self._last_diag = -math.inf
-        self._rtf_window: list[tuple[float, float]] = []
+        self._rtf_window: deque[tuple[float, float]] = deque()    # (wall, sim time) over the last 2 s of wall time
         self._behind = False
         self.recorder = None
         if p["record"]:
@@ -253,8 +254,10 @@ class SimNode(Node):
                     return
                 if time.monotonic() - wall_start >= budget:
                     break
-        self._rtf_window.append((time.monotonic(), self.sim_time))
-        self._rtf_window = [w for w in self._rtf_window if w[0] > self._rtf_window[-1][0] - 2.0]
+        now = time.monotonic()
+        self._rtf_window.append((now, self.sim_time))
+        while self._rtf_window[0][0] <= now - 2.0:     # entries are in wall-time order: the old ones are first
+            self._rtf_window.popleft()
 
     def _step(self) -> bool:
         try:
@@ -284,8 +287,10 @@ class SimNode(Node):
             self.last_error = "non-finite state withheld from publication"
             return
         self.pub_clock.publish(convert.clock_msg(t))
-        self.pub_pose.publish(convert.pose_msg(t, self.frame_id, pos_w, R_w))
-        self.pub_odom.publish(convert.odometry_msg(t, self.frame_id, self.child_frame_id, pos_w, R_w, v_w, w_w))
+        pose = convert.pose_msg(t, self.frame_id, pos_w, R_w)
+        self.pub_pose.publish(pose)
+        # odometry carries the same pose: the orientation quaternion is computed once per tick
+        self.pub_odom.publish(convert.odometry_msg(t, self.frame_id, self.child_frame_id, pose.pose, R_w, v_w, w_w))
         self.pub_joints.publish(convert.joint_state_msg(t, ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t,
                                                         sim.motor_angle, sim.omega_T, torque))
         self.pub_omega_h.publish(convert.float_msg(ob.rate_h))
