@@ -167,19 +167,12 @@ def _initial_omega(meta) -> float | None:
 def _motor_joint_steps(js_rows) -> list:
     """Exact command steps from the sim_node's ``motor`` joint (command in force and its integral, stamped in
     simulation time) in the decoded ``joint_states`` rows; [] when the recording has no such joint."""
-    import numpy as np
-
-    from .resim import command_schedule
-    rows = [m for _, _, m in js_rows]
-    if not rows or "motor" not in rows[0].name:
+    from .resim import command_schedule, motor_samples
+    motor = motor_samples([m for _, _, m in js_rows])
+    if motor is None:
         return []
-    k = rows[0].name.index("motor")
-    rows.sort(key=lambda m: (m.header.stamp.sec, m.header.stamp.nanosec))
-    t = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in rows])
-    angle = np.array([m.position[k] for m in rows])
-    rate = np.array([m.velocity[k] for m in rows])
-    keep = np.r_[True, np.diff(t) > 0]
-    schedule, _ = command_schedule(t[keep], angle[keep], rate[keep], dt=None)
+    _, t, angle, rate = motor
+    schedule, _ = command_schedule(t, angle, rate, dt=None)
     return [(ts, w, "motor joint") for ts, w in schedule]
 
 

@@ -46,6 +46,22 @@ def _stamp(m) -> float:
     return m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
 
 
+def motor_samples(js: list) -> tuple[list, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Decoded ``joint_states`` messages -> one sample per stamp, in time order: (messages, t, motor angle, motor
+    rate); None when there is no ``motor`` joint."""
+    if not js or "motor" not in js[0].name:
+        return None
+    seen, samples = set(), []
+    for m in sorted(js, key=_stamp):
+        ts = round(_stamp(m), 9)
+        if ts not in seen:
+            seen.add(ts)
+            samples.append(m)
+    k = samples[0].name.index("motor")
+    return (samples, np.array([_stamp(m) for m in samples]), np.array([m.position[k] for m in samples]),
+            np.array([m.velocity[k] for m in samples]))
+
+
 def command_schedule(t: np.ndarray, angle: np.ndarray, rate: np.ndarray, dt: float | None
                      ) -> tuple[list, list]:
     """[(t_switch, omega)] from the motor joint samples (the first entry starts at t[0]); switch times rounded to
@@ -84,7 +100,8 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
         js = [m for _, _, m in rows[js_topic]]
         poses = {round(_stamp(m), 9): m.pose.position for _, _, m in rows[pose_topic]}
         notes = [] if r.report.ok else [f"the recording is damaged: {r.report.describe_loss()}"]
-    if not js or "motor" not in js[0].name:
+    motor = motor_samples(js)
+    if motor is None:
         raise ResimulationError(f"{path}: joint_states has no 'motor' joint (recorded by an older version?)")
     try:
         scene = scene_from_dict(tomllib.loads(meta.scene_toml))
@@ -95,17 +112,8 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
             scene = scene.with_overrides(extra)
     except (SceneError, tomllib.TOMLDecodeError) as exc:
         raise ResimulationError(f"{path}: the recorded scene does not load: {exc}") from None
-    # samples in time order, one per stamp; a reset (motor angle back to zero) ends what can be compared
-    seen, samples = set(), []
-    for m in sorted(js, key=_stamp):
-        ts = round(_stamp(m), 9)
-        if ts not in seen:
-            seen.add(ts)
-            samples.append(m)
-    im = samples[0].name.index("motor")
-    t = np.array([_stamp(m) for m in samples])
-    angle = np.array([m.position[im] for m in samples])
-    rate = np.array([m.velocity[im] for m in samples])
+    # a reset (motor angle back to zero) ends what can be compared
+    samples, t, angle, rate = motor
     drop = np.nonzero(np.diff(angle) * np.sign(rate[:-1] + 1e-300) < -1e-9)[0]
     if len(drop):
         cut = drop[0] + 1
