@@ -31,7 +31,10 @@ def t_of(stamp):
 
 
 class Listener:
-    """Collects everything sim_node publishes, and asserts nothing non-finite ever arrives."""
+    """Collects everything sim_node publishes, and asserts nothing non-finite ever arrives.
+
+    Lives on the module's shared probe node: close() it at the end of the test, or later tests keep receiving
+    (and decoding) messages into it."""
 
     def __init__(self, node: Node):
         self.node = node
@@ -39,18 +42,31 @@ class Listener:
                                      "diag")}
         self.non_finite = []
         sub = node.create_subscription
-        sub(Clock, "/clock", self._cb("clock"), 50)
-        sub(PoseStamped, "head_pose", self._cb("pose"), 50)
-        sub(Odometry, "odom", self._cb("odom"), 50)
-        sub(JointState, "joint_states", self._cb("joints"), 50)
-        sub(Float64, "omega_h", self._cb("omega_h"), 50)
-        sub(Float64, "omega_t", self._cb("omega_t"), 50)
-        sub(Float64, "speed", self._cb("speed"), 50)
-        sub(MarkerArray, "markers", self._cb("markers"), 10)
-        sub(DiagnosticArray, "/diagnostics", self._cb("diag"), 10)
+        self.subs = [
+            sub(Clock, "/clock", self._cb("clock"), 50),
+            sub(PoseStamped, "head_pose", self._cb("pose"), 50),
+            sub(Odometry, "odom", self._cb("odom"), 50),
+            sub(JointState, "joint_states", self._cb("joints"), 50),
+            sub(Float64, "omega_h", self._cb("omega_h"), 50),
+            sub(Float64, "omega_t", self._cb("omega_t"), 50),
+            sub(Float64, "speed", self._cb("speed"), 50),
+            sub(MarkerArray, "markers", self._cb("markers"), 10),
+            sub(DiagnosticArray, "/diagnostics", self._cb("diag"), 10),
+        ]
         self.cmd = node.create_publisher(Float64, "cmd_omega", 10)
         self.pause = node.create_client(SetBool, "pause")
         self.reset = node.create_client(Trigger, "reset")
+
+    def close(self) -> None:
+        """Destroy the subscriptions, the publisher and the clients on the shared node (idempotent)."""
+        for s in self.subs:
+            self.node.destroy_subscription(s)
+        self.subs = []
+        if self.cmd is not None:
+            self.node.destroy_publisher(self.cmd)
+            self.node.destroy_client(self.pause)
+            self.node.destroy_client(self.reset)
+            self.cmd = self.pause = self.reset = None
 
     def _cb(self, key):
         def cb(m):
@@ -95,6 +111,7 @@ def sim_node(ros, request):
                        "-p", "start_paused:=true", "-p", "publish_rate:=50.0", "-p", f"initial_omega:={omega}")
     lis = Listener(ros)
     yield proc, lis
+    lis.close()
     code, out = proc.stop()
     assert code == 0 and "Traceback" not in out, out
 
@@ -268,7 +285,10 @@ def test_recording_started_at_runtime_stores_the_values_being_set(ros, sim_node,
 def test_shuts_down_cleanly_on_signals(ros, sig):
     proc = NodeProcess("flagbot_sim.ros.sim_node", "--ros-args", "-p", "scene:=design2", "-p", "initial_omega:=5.0")
     lis = Listener(ros)
-    spin_until(ros, lambda: len(lis.msgs["clock"]) > 3, DISCOVERY_TIMEOUT, "/clock")
+    try:
+        spin_until(ros, lambda: len(lis.msgs["clock"]) > 3, DISCOVERY_TIMEOUT, "/clock")
+    finally:
+        lis.close()
     code, out = proc.stop(sig)
     assert code == 0, out
     assert "Traceback" not in out and "error" not in out.lower()
