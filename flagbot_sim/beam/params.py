@@ -8,7 +8,6 @@ DER simulator keeps the two frameworks on identical parameters.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -48,9 +47,6 @@ class BeamParams:
                    eta_p=scene.eta_p, R_d=scene.R_d, c_drag=scene.head_drag_coefficient,
                    c_torque=scene.head_torque_coefficient)
 
-    def with_n(self, n: int) -> "BeamParams":
-        return dataclasses.replace(self, n=n)
-
     # ---- dimensionless groups (paper section "Parameter fitting") ----
     @property
     def kappa(self) -> float:
@@ -69,10 +65,6 @@ class BeamParams:
     def normalise_speed(self, v: float) -> float:
         """v_bar = v eta_p L^3 / EI."""
         return v * self.eta_p * self.L ** 3 / self.EI
-
-    def normalise_force(self, F: float) -> float:
-        """F_bar = F L^2 / EI: the force scale of a cantilever of length L."""
-        return F * self.L ** 2 / self.EI
 
     def load_number(self, omega_t: float) -> float:
         """A = eta_p omega_t R_d L^3 / EI = omega_t_bar R_d / L: the LB load p_t in units of EI / L^3.
