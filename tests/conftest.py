@@ -5,7 +5,8 @@ import tempfile
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 # one domain per test process (0-232 are valid); pytest-xdist workers are separate processes
 os.environ.setdefault("ROS_DOMAIN_ID", str(20 + os.getpid() % 200))
-os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="flagbot_roslog_"))
+if "ROS_LOG_DIR" not in os.environ:        # dev.py sets it; setdefault would still create an empty dir
+    os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="flagbot_roslog_")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 
