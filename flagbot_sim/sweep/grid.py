@@ -8,7 +8,6 @@ combination the scene refuses (edge longer than the flagellum, ...) is one error
 from __future__ import annotations
 
 import itertools
-import math
 import tomllib
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -146,6 +145,4 @@ def validate(base: Scene, grid: dict[str, list], fixed_overrides: dict) -> tuple
         if scene.clamped:
             raise SweepError(f"scene {base.scene.name!r} is a clamped flagellum; sweeps need a free robot "
                              "(head_drag, head_torque, motor)")
-        if not math.isfinite(scene.omega_T):
-            raise SweepError(f"grid point {p.key}: motor speed is not finite")
     return normalised, points
