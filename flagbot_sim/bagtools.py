@@ -91,12 +91,13 @@ def cmd_record(args) -> int:
         return _fail(exc)
 
 
-def cmd_replay(args) -> int:
+def cmd_replay(args, ros_args: list[str] | None = None) -> int:
+    """``flagbot replay`` and the ``replay`` console script: a ROS replay, or with ``--resimulate`` none."""
     if args.resimulate:
         return cmd_resimulate(args)
     try:
         from .ros.replay import run
-        return run(args, ros_args=["replay"])
+        return run(args, ros_args=ros_args or ["replay"])
     except BagError as exc:
         return _fail(exc)
 

@@ -258,9 +258,10 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``replay`` console script: ``replay BAG [--rate R] [--loop] [--topics ...] [--exclude ...] [--ros-args ...]``."""
-    from ..bagtools import add_replay_arguments, console_main
-    return console_main("replay", "Replay an MCAP recording with its timing.", add_replay_arguments, run, argv)
+    """``replay`` console script: ``replay BAG [--rate R] [--loop] [--topics ...] [--exclude ...] [--ros-args ...]``
+    (``--resimulate``: no ROS, as ``flagbot replay --resimulate``)."""
+    from ..bagtools import add_replay_arguments, cmd_replay, console_main
+    return console_main("replay", "Replay an MCAP recording with its timing.", add_replay_arguments, cmd_replay, argv)
 
 
 if __name__ == "__main__":
