@@ -32,6 +32,14 @@ def raw_rows(directory) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
+def test_frameworks_are_der_then_the_beam_regimes_in_order():
+    # written out in sweep.task so that plotting need not import the beam solver; they must not drift apart
+    from flagbot_sim.beam import REGIMES
+    from flagbot_sim.sweep.task import FRAMEWORK_LABELS, FRAMEWORKS
+    assert FRAMEWORKS == ("der", *REGIMES)
+    assert set(FRAMEWORK_LABELS) == set(FRAMEWORKS)
+
+
 # ---------------------------------------------------------------- grid
 def test_ranges_are_inclusive_and_exact():
     grid = parse_grid(["n=2,3", "motor.omega_rpm=20:250:10", "L=0.09:0.13:0.02", "head.C1=1,2:3:0.5"])

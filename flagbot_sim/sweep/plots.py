@@ -20,7 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from .store import read_manifest, read_results
-from .task import FRAMEWORK_LABELS
+from .task import FRAMEWORK_LABELS, FRAMEWORKS
+
+#: the beam regimes (beam.balance.REGIMES), taken from the sweep's frameworks so as not to import the beam solver
+REGIMES = FRAMEWORKS[1:]
 
 PLOT_KEYS = ("robot.n_flagella", "motor.omega_rpm", "flagellum.length")
 #: beam regimes drawn next to DER in the speed and head-spin figures; the paper's beam curves are NLB w/o head
@@ -208,7 +211,7 @@ def figure_deflection(rows: list[dict], L: float | None = None, title: str = "")
     ns = n_values(rows)
     colours = {"lb": "tab:gray", "nlb-nohead": "tab:blue", "nlb": "tab:red"}
     lines = {n: ls for n, ls in zip(ns, ["-", "--", ":", "-."] * 3)}
-    for fw in ("lb", "nlb-nohead", "nlb"):
+    for fw in REGIMES:
         for n in ns:
             x, y = curve(rows, fw, n, L, y="w_tip_over_L")
             if len(x):

@@ -22,6 +22,8 @@ from dataclasses import asdict, dataclass
 
 from ..scene import Scene, scene_from_dict
 
+#: "der" then beam.balance.REGIMES in its order (tests/test_sweep.py checks it). Written out rather than imported:
+#: importing anything from flagbot_sim.beam loads the beam solver (scipy), and plotting a sweep must not
 FRAMEWORKS = ("der", "lb", "nlb-nohead", "nlb")
 #: human names, as in the paper
 FRAMEWORK_LABELS = {"der": "DER", "lb": "LB", "nlb-nohead": "NLB w/o head", "nlb": "NLB"}
