@@ -34,7 +34,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
                    WriteSummary, normalize_type, qos_to_yaml)
@@ -54,26 +54,15 @@ def message_class(type_name: str) -> type:
         raise BagError(f"message type {type_name} is not installed ({exc})") from None
 
 
-_REL = {ReliabilityPolicy.RELIABLE: "reliable", ReliabilityPolicy.BEST_EFFORT: "best_effort",
-        ReliabilityPolicy.SYSTEM_DEFAULT: "system_default"}
-_DUR = {DurabilityPolicy.TRANSIENT_LOCAL: "transient_local", DurabilityPolicy.VOLATILE: "volatile",
-        DurabilityPolicy.SYSTEM_DEFAULT: "system_default"}
-_HIST = {HistoryPolicy.KEEP_LAST: "keep_last", HistoryPolicy.KEEP_ALL: "keep_all",
-         HistoryPolicy.SYSTEM_DEFAULT: "system_default"}
-_LIVE = {LivelinessPolicy.AUTOMATIC: "automatic", LivelinessPolicy.MANUAL_BY_TOPIC: "manual_by_topic",
-         LivelinessPolicy.SYSTEM_DEFAULT: "system_default"}
-
-
 def _ns(d) -> int:
     return int(getattr(d, "nanoseconds", 0))
 
 
 def qos_info(profile: QoSProfile) -> QosInfo:
     """rclpy QoS profile (e.g. a publisher's, from the graph) -> the bag's QosInfo."""
-    return QosInfo(history=_HIST.get(profile.history, "unknown"), depth=int(profile.depth),
-                   reliability=_REL.get(profile.reliability, "unknown"),
-                   durability=_DUR.get(profile.durability, "unknown"),
-                   liveliness=_LIVE.get(profile.liveliness, "unknown"),
+    return QosInfo(history=profile.history.short_key, depth=int(profile.depth),
+                   reliability=profile.reliability.short_key, durability=profile.durability.short_key,
+                   liveliness=profile.liveliness.short_key,
                    deadline_ns=_ns(profile.deadline), lifespan_ns=_ns(profile.lifespan),
                    liveliness_lease_ns=_ns(profile.liveliness_lease_duration))
 
