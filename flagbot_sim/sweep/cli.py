@@ -5,7 +5,6 @@ import signal
 import sys
 import time
 
-from ..scene import parse_overrides
 from .engines import ENGINES, default_workers, run_tasks
 from .grid import SweepError, parse_grid, validate
 from .store import SweepStore, manifest_identity
@@ -88,8 +87,7 @@ def cmd_sweep(args) -> int:
     from ..scene import load_scene
 
     base = load_scene(args.scene, args.overrides)
-    fixed = parse_overrides(args.overrides)
-    grid, points = validate(base, parse_grid(args.grid), fixed)
+    grid, points = validate(base, parse_grid(args.grid), base.overrides)     # base.overrides: the parsed --set
     settings = SteadySettings(t_max=args.t_max,
                               window=args.window if args.window is not None else base.observe.steady_window,
                               rtol=args.rtol if args.rtol is not None else base.observe.steady_rtol)
