@@ -5,7 +5,7 @@ import signal
 import sys
 import time
 
-from .engines import ENGINES, default_workers, run_tasks
+from .engines import ENGINES, default_workers, run_tasks, worker_count
 from .grid import SweepError, parse_grid, validate
 from .store import SweepStore, manifest_identity
 from .task import FRAMEWORKS, SteadySettings, make_task
@@ -98,7 +98,7 @@ def cmd_sweep(args) -> int:
                        extra={"scene_name": base.scene.name, "scene_source": base.source, "set": args.overrides,
                               "command": sys.argv[1:]}, scene_toml=base.to_toml())
     pending = store.pending()
-    workers = 1 if args.engine == "serial" else (args.workers or default_workers())
+    workers = worker_count(args.engine, args.workers, len(pending))     # what run_tasks will start
     where = args.scheduler or ("this process" if args.engine == "serial" else f"{workers} worker(s)")
     print(f"sweep {base.scene.name}: {len(points)} points x {len(frameworks)} frameworks; "
           f"{len(points) - len(pending)} already in {store.csv_path}; computing {len(pending)} "
@@ -109,7 +109,7 @@ def cmd_sweep(args) -> int:
     done = 0
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
-        for res in run_tasks(tasks, args.engine, args.workers, args.scheduler):
+        for res in run_tasks(tasks, args.engine, workers, args.scheduler):
             store.write_point(res)
             done += 1
             bar.update(done, _progress_text(res), force=done == len(pending))

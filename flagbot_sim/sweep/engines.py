@@ -25,6 +25,17 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
+def worker_count(engine: str, workers: int | None, n_tasks: int) -> int:
+    """Worker processes that will run n_tasks: 1 for serial, else ``workers`` (default: the cores) but no more
+    than there are tasks, and at least 1 (itself a valid ``workers``). With a remote Dask scheduler the cluster
+    has its own workers and this is unused."""
+    if workers is not None and workers < 1:
+        raise SweepError(f"--workers must be at least 1, got {workers}")
+    if engine == "serial":
+        return 1
+    return min(workers or default_workers(), max(1, n_tasks))
+
+
 def _single_thread_env() -> None:
     # inherited by workers started after this (spawn: fresh interpreters that import numpy afresh)
     for k in _SINGLE_THREAD_ENV:
@@ -119,17 +130,16 @@ def run_dask(tasks: list[dict], workers: int, scheduler: str | None) -> Iterator
 
 def run_tasks(tasks: list[dict], engine: str, workers: int | None = None,
               scheduler: str | None = None) -> Iterator[dict]:
+    """Run the tasks on the engine; ``workers`` as for :func:`worker_count` (passing its result changes nothing)."""
     if engine not in ENGINES:
         raise SweepError(f"--engine {engine!r}: choose one of {', '.join(ENGINES)}")
     if scheduler and engine != "dask":
         raise SweepError("--scheduler is only used with --engine dask")
-    if workers is not None and workers < 1:
-        raise SweepError(f"--workers must be at least 1, got {workers}")
-    k = workers or default_workers()
+    k = worker_count(engine, workers, len(tasks))
     if not tasks:
         return iter(())
     if engine == "serial":
         return run_serial(tasks)
     if engine == "local":
-        return run_local(tasks, min(k, len(tasks)))
-    return run_dask(tasks, min(k, len(tasks)), scheduler)
+        return run_local(tasks, k)
+    return run_dask(tasks, k, scheduler)
