@@ -826,14 +826,14 @@ def _open_bytes(path: str | os.PathLike) -> tuple[Path, Any, int]:
 _REORDER_WINDOW_NS = 2_000_000_000
 
 
-def _log_time_order(msgs: Iterable[BagMessage], window_ns: int) -> Iterator[BagMessage]:
-    """``msgs`` sorted by log time with a bounded reorder window (ties keep their order)."""
+def _log_time_order(msgs: Iterable[BagMessage]) -> Iterator[BagMessage]:
+    """``msgs`` sorted by log time within the reorder window (ties keep their order)."""
     heap: list = []
     newest = None
     for k, m in enumerate(msgs):
         heapq.heappush(heap, (m.log_time_ns, k, m))
         newest = m.log_time_ns if newest is None else max(newest, m.log_time_ns)
-        while heap and heap[0][0] < newest - window_ns:
+        while heap and heap[0][0] < newest - _REORDER_WINDOW_NS:
             yield heapq.heappop(heap)[2]
     while heap:
         yield heapq.heappop(heap)[2]
@@ -856,7 +856,7 @@ class BagReader:
         self._factory = None
 
     # -- the record walk
-    def _resync(self, start: int, rep: ScanReport) -> int:
+    def _resync(self, start: int) -> int:
         """Offset of the next record that can be trusted at or after ``start`` (the file size if none)."""
         buf, n = self._buf, self.size
         candidates = []
@@ -890,8 +890,8 @@ class BagReader:
             return i
         return n
 
-    def _walk(self, rep: ScanReport) -> Iterator[tuple[int, Any]]:
-        """Yield (offset, record) for Schema, Channel, Message, Metadata, Attachment records of the data section,
+    def _walk(self, rep: ScanReport) -> Iterator[Any]:
+        """Yield the Schema, Channel, Message, Metadata, Attachment records of the data section,
         chunks expanded; fill ``rep`` with damage, data-end and summary facts as it goes."""
         buf, n = self._buf, self.size
         pos = len(MCAP_MAGIC)
@@ -912,7 +912,7 @@ class BagReader:
             op, length = _REC.unpack_from(buf, pos)
             end = pos + 9 + length
             if op not in _DATA_OPCODES or op == Opcode.HEADER:
-                nxt = self._resync(pos + 1, rep)
+                nxt = self._resync(pos + 1)
                 rep.damage.append(Damage("unreadable", pos, nxt - pos,
                                          f"no valid record (opcode 0x{op:02x}, length {length})"))
                 pos = nxt
@@ -922,7 +922,7 @@ class BagReader:
                                                       f"off after {n - pos} bytes")
                 if op == Opcode.CHUNK and n - pos >= 25:
                     d.log_start_ns, d.log_end_ns = struct.unpack_from("<QQ", buf, pos + 9)
-                nxt = self._resync(pos + 1, rep)
+                nxt = self._resync(pos + 1)
                 d.length = nxt - pos
                 if nxt < n:  # readable records follow: the length field was damaged, not the file cut short
                     d.kind, d.detail = "unreadable", f"record length {length} points past the end of the file"
@@ -932,7 +932,7 @@ class BagReader:
             try:
                 rec = _parse(op, buf[pos + 9:end], exact=op not in (Opcode.DATA_END,))
             except _BadRecord as exc:
-                nxt = self._resync(pos + 1, rep)
+                nxt = self._resync(pos + 1)
                 rep.damage.append(Damage("unreadable", pos, nxt - pos, str(exc)))
                 pos = nxt
                 continue
@@ -946,8 +946,7 @@ class BagReader:
                     continue
                 rep.readable_bytes += 9 + length
                 pos = end
-                for r in inner:
-                    yield pos - 9 - length, r
+                yield from inner
                 continue
             rep.readable_bytes += 9 + length
             if op == Opcode.DATA_END:
@@ -955,7 +954,7 @@ class BagReader:
                 self._read_summary(end, rep)
                 return
             if op in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.METADATA, Opcode.ATTACHMENT):
-                yield pos, rec
+                yield rec
             pos = end
 
     def _read_summary(self, pos: int, rep: ScanReport) -> None:
@@ -986,7 +985,7 @@ class BagReader:
 
     def _records(self, rep: ScanReport) -> Iterator[tuple[str, Any]]:
         """Walk + bookkeeping of schemas/channels/metadata; yields ('message', BagMessage) and the other records."""
-        for _, rec in self._walk(rep):
+        for rec in self._walk(rep):
             if isinstance(rec, Message):
                 ch = self._channels.get(rec.channel_id)
                 if ch is None:
@@ -1066,25 +1065,16 @@ class BagReader:
         rec = self.metadata_named(RUN_METADATA_NAME)
         return RunMetadata.from_record(rec) if rec is not None else None
 
-    def messages(self, topics: Iterable[str] | None = None, *, start_ns: int | None = None,
-                 end_ns: int | None = None, order: str = "log_time", reorder_window_ns: int = _REORDER_WINDOW_NS
-                 ) -> Iterator[BagMessage]:
-        """Stream messages, optionally of some topics and a log-time range [start_ns, end_ns).
+    def messages(self, topics: Iterable[str] | None = None, *, start_ns: int | None = None) -> Iterator[BagMessage]:
+        """Stream messages in log-time order, optionally of some topics and from log time ``start_ns`` on.
 
-        ``order='log_time'`` sorts with a bounded reorder window (a recorder's executor can take messages slightly
-        out of arrival order); ``order='file'`` yields them as stored. Damage is skipped; see :attr:`report`.
+        The order is restored within a bounded reorder window (a recorder's executor can take messages slightly
+        out of arrival order). Damage is skipped; see :attr:`report`.
         """
-        selected = self._stored_messages(topics, start_ns, end_ns)
-        if order == "file":
-            yield from selected
-            return
-        if order != "log_time":
-            raise ValueError(f"order must be 'log_time' or 'file', not {order!r}")
-        yield from _log_time_order(selected, reorder_window_ns)
+        yield from _log_time_order(self._stored_messages(topics, start_ns))
 
-    def _stored_messages(self, topics: Iterable[str] | None, start_ns: int | None = None,
-                         end_ns: int | None = None) -> Iterator[BagMessage]:
-        """Messages of ``topics`` (None: all) in [start_ns, end_ns), in file order."""
+    def _stored_messages(self, topics: Iterable[str] | None, start_ns: int | None = None) -> Iterator[BagMessage]:
+        """Messages of ``topics`` (None: all) logged at or after ``start_ns``, in file order."""
         want = set(topics) if topics is not None else None
         rep = ScanReport(str(self.path), self.size)  # scratch report; the cached one comes from a full pass
         for kind, rec in self._records(rep):
@@ -1093,8 +1083,6 @@ class BagReader:
             if want is not None and rec.topic not in want:
                 continue
             if start_ns is not None and rec.log_time_ns < start_ns:
-                continue
-            if end_ns is not None and rec.log_time_ns >= end_ns:
                 continue
             yield rec
 
@@ -1133,7 +1121,7 @@ class BagReader:
         for topic, msgs in stored.items():
             dec = self.decoder(msgs[0]) if msgs else None
             out[topic] = [(m.log_time_ns, m.publish_time_ns, dec(m.data))
-                          for m in _log_time_order(msgs, _REORDER_WINDOW_NS)]
+                          for m in _log_time_order(msgs)]
         return out
 
     def close(self) -> None:
