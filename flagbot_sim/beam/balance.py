@@ -33,7 +33,7 @@ from typing import Iterable
 
 from scipy.optimize import brentq
 
-from .linear import FlagellumSolution, lb_tip_deflection, solve_lb
+from .linear import FlagellumSolution, lb_F_p, solve_lb
 from .nonlinear import DEFAULT_TOL, BeamSolveError, NLBSolveError, solve_nlb, solve_nlb_coupled
 from .params import BeamParams
 from ..scene import RPM
@@ -91,8 +91,8 @@ def _check_regime(regime: str) -> None:
 
 
 def lb_head_speed(params: BeamParams, omega_t: float) -> float:
-    """v_h of LB: c_drag v_h = n ((eta_p - eta_t) omega_t R_d w(L) - eta_t v_h L), solved for v_h."""
-    drive = (params.eta_p - params.eta_t) * omega_t * params.R_d * lb_tip_deflection(params, omega_t)
+    """v_h of LB: c_drag v_h = n F_p(v_h) = n (F_p(0) - eta_t v_h L) (Eq. Fp_linear_solution), solved for v_h."""
+    drive = lb_F_p(params, omega_t, 0.0)
     return params.n * drive / (params.c_drag + params.n * params.eta_t * params.L)
 
 
