@@ -400,7 +400,6 @@ class TopicStats:
     count: int = 0
     first_log_ns: int | None = None
     last_log_ns: int | None = None
-    bytes: int = 0
 
 
 @dataclass
@@ -543,7 +542,6 @@ class BagWriter:
             self._pending += 1
             st = self.stats[topic]
             st.count += 1
-            st.bytes += len(data)
             if st.first_log_ns is None:
                 st.first_log_ns = log_time_ns
             st.last_log_ns = log_time_ns
@@ -654,12 +652,10 @@ class ScanReport:
     start_ns: int | None = None
     end_ns: int | None = None
     topics: dict[str, TopicInfo] = field(default_factory=dict)
-    readable_bytes: int = 0          # bytes in records that were read
     data_end: bool = False           # the data section was terminated (writer got to finish())
     closed: bool = False             # summary, footer and closing magic present: the file was closed properly
     summary_messages: int | None = None  # message count in the summary's statistics, when it survived
     damage: list[Damage] = field(default_factory=list)
-    skipped_messages: int = 0        # messages on channels with no channel record
 
     @property
     def ok(self) -> bool:
@@ -904,7 +900,6 @@ class BagReader:
                     pos += 9 + length
                 except _BadRecord:
                     pass
-        rep.readable_bytes = pos
         while pos < n:
             if n - pos < 9:
                 rep.damage.append(Damage("truncated", pos, n - pos, "file ends inside a record header"))
@@ -944,11 +939,9 @@ class BagReader:
                                              rec.message_start_time, rec.message_end_time))
                     pos = end
                     continue
-                rep.readable_bytes += 9 + length
                 pos = end
                 yield from inner
                 continue
-            rep.readable_bytes += 9 + length
             if op == Opcode.DATA_END:
                 rep.data_end = True
                 self._read_summary(end, rep)
@@ -972,12 +965,10 @@ class BagReader:
                     rep.summary_messages = _parse(op, buf[pos + 9:end], exact=False).message_count
                 except _BadRecord:
                     pass
-            rep.readable_bytes += 9 + length
             pos = end
             if op == Opcode.FOOTER:
                 if buf[pos:pos + 8] == MCAP_MAGIC and pos + 8 == n:
                     rep.closed = True
-                    rep.readable_bytes += 8
                 else:
                     rep.damage.append(Damage("truncated", pos, n - pos, "closing magic missing after the footer"))
                 return
@@ -989,7 +980,6 @@ class BagReader:
             if isinstance(rec, Message):
                 ch = self._channels.get(rec.channel_id)
                 if ch is None:
-                    rep.skipped_messages += 1
                     continue
                 sch = self._schemas.get(ch.schema_id)
                 yield "message", BagMessage(ch.topic, sch.name if sch else "", rec.log_time, rec.publish_time,
