@@ -1203,9 +1203,8 @@ def find_topic(topics: Iterable[str], name: str, namespace: str | None = None) -
         t = namespace.rstrip("/") + "/" + name
         t = t if t.startswith("/") else "/" + t
         return t if t in topics else None
-    cands = sorted(t for t in topics if t == "/" + name or t.endswith("/" + name))
-    # prefer the shortest (/bot/omega_h over /bot/beam/omega_h)
-    cands.sort(key=lambda t: (t.count("/"), t))
+    # prefer the shortest (/bot/omega_h over /bot/beam/omega_h), then the first by name
+    cands = sorted((t for t in topics if t == "/" + name or t.endswith("/" + name)), key=lambda t: (t.count("/"), t))
     return cands[0] if cands else None
 
 
