@@ -182,16 +182,6 @@ class Recorder:
         """topic -> type of every topic subscribed so far."""
         return self.writer.topics
 
-    def wait_for_topics(self, topics: Iterable[str] | None = None, timeout: float = 10.0) -> bool:
-        """Block until the given (default: all wanted) topics are subscribed; the node must be spun elsewhere."""
-        want = [self.node.resolve_topic_name(t) for t in topics] if topics is not None else self.wanted
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if all(t in self._subs for t in want):
-                return True
-            time.sleep(0.05)
-        return False
-
     def close(self) -> WriteSummary:
         """Stop recording and close the file with its summary and index. Safe after rclpy shut down."""
         if not self._closed:

@@ -182,11 +182,10 @@ class Replayer:
                     break
         except _Stopped:
             self.stats.interrupted = True
-        except Exception as exc:  # publishing after a signal shut the context down
+        except Exception:  # publishing after a signal shut the context down
             if rclpy.ok(context=self.node.context):
                 raise
             self.stats.interrupted = True
-            del exc
         self.stats.wall_seconds = time.monotonic() - t_begin
         return self.stats
 
