@@ -220,8 +220,6 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
             replayer = Replayer(node, args.bag, rate=args.rate, loop=args.loop, topics=args.topics or None,
                                 exclude=args.exclude or (), start_offset=args.start_offset, clock=not args.no_clock,
                                 clock_rate=args.clock_rate)
-            if not replayer.report.ok:
-                print("warning: " + replayer.report.describe_loss(), file=sys.stderr, flush=True)
             executor = SingleThreadedExecutor()
             executor.add_node(node)
 
