@@ -57,6 +57,8 @@ from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, M
                           Statistics)
 from mcap.writer import CompressionType, Writer
 
+from .ros.names import CLOCK, CMD_OMEGA  # plain names, no ROS import
+
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 PROFILE = "ros2"
 SCHEMA_ENCODING = "ros2msg"
@@ -1233,7 +1235,7 @@ class SimTimeMap:
                          np.asarray(self.clock_ns, dtype=float)) * 1e-9
 
 
-def sim_time_map(reader: BagReader, clock_topic: str = "/clock") -> SimTimeMap:
+def sim_time_map(reader: BagReader, clock_topic: str = CLOCK) -> SimTimeMap:
     if clock_topic not in reader.topics:
         return SimTimeMap([], [])
     return SimTimeMap.from_rows(reader.decoded(clock_topic))
@@ -1245,10 +1247,10 @@ def read_run(path: str | os.PathLike, namespace: str | None = None) -> RunRecord
         rep = r.report
         meta = r.run_metadata()
         cmds = []
-        topic = find_topic(r.topics, "cmd_omega", namespace)
+        topic = find_topic(r.topics, CMD_OMEGA, namespace)
         if topic is not None:
-            rows = r.decoded_many([topic, "/clock"])
-            smap = SimTimeMap.from_rows(rows["/clock"])
+            rows = r.decoded_many([topic, CLOCK])
+            smap = SimTimeMap.from_rows(rows[CLOCK])
             for lt, _, m in rows[topic]:
                 cmds.append(((lt - rep.start_ns) * 1e-9, float(smap(lt)) if smap else None, float(m.data)))
         return RunRecord(str(r.path), meta, rep.start_ns, cmds, rep)

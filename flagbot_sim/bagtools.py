@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of, recover
+from .ros.names import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -187,18 +188,19 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
         rep = r.report
         meta = r.run_metadata()
         topics = r.topics
-        cmd_topic = find_topic(topics, "cmd_omega", namespace)
+        cmd_topic = find_topic(topics, CMD_OMEGA, namespace)
         ns = namespace
         if ns is None:
-            for name in ("cmd_omega", "omega_h", "speed", "omega_t"):
+            for name in (CMD_OMEGA, OMEGA_H, SPEED, OMEGA_T):
                 t = find_topic(topics, name)
                 if t is not None:
                     ns = namespace_of(t, name)
                     break
-        series_topics = {name: find_topic(topics, name, ns) for name in ("omega_h", "omega_t", "speed")}
-        js_topic = find_topic(topics, "joint_states", ns) if time_axis != "log" else None
-        rows = r.decoded_many([t for t in (*series_topics.values(), cmd_topic, js_topic, "/clock") if t is not None])
-        smap = SimTimeMap.from_rows(rows["/clock"])
+        series_topics = {"omega_h": find_topic(topics, OMEGA_H, ns), "omega_t": find_topic(topics, OMEGA_T, ns),
+                         "speed": find_topic(topics, SPEED, ns)}
+        js_topic = find_topic(topics, JOINT_STATES, ns) if time_axis != "log" else None
+        rows = r.decoded_many([t for t in (*series_topics.values(), cmd_topic, js_topic, CLOCK) if t is not None])
+        smap = SimTimeMap.from_rows(rows[CLOCK])
         use_sim = (time_axis == "sim") or (time_axis == "auto" and bool(smap))
         if use_sim and not smap:
             raise BagError("--time sim needs a recorded /clock")

@@ -21,6 +21,7 @@ import numpy as np
 from . import world
 from .bag import BagReader, find_topic
 from .physics import Simulation
+from .ros.names import HEAD_POSE, JOINT_STATES
 from .scene import SceneError, node_overrides, scene_from_dict
 
 
@@ -92,8 +93,8 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
         if meta is None or not meta.scene_toml:
             raise ResimulationError(f"{path}: no flagbot_sim metadata with the scene: not recorded by sim_node's "
                                     "`record` parameter or `record --params-from /sim_node`")
-        js_topic = find_topic(r.topics, "joint_states", namespace)
-        pose_topic = find_topic(r.topics, "head_pose", namespace)
+        js_topic = find_topic(r.topics, JOINT_STATES, namespace)
+        pose_topic = find_topic(r.topics, HEAD_POSE, namespace)
         if js_topic is None or pose_topic is None:
             raise ResimulationError(f"{path}: needs the joint_states and head_pose topics")
         rows = r.decoded_many([js_topic, pose_topic])

@@ -28,10 +28,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..bag import BagError, BagReader, ScanReport
+from .names import CLOCK
 from .recorder import message_class
 from .runtime import SLICE, release, ros_process
-
-CLOCK_TOPIC = "/clock"
 
 
 @dataclass
@@ -124,10 +123,10 @@ class Replayer:
                 continue
             self.publishers[topic] = node.create_publisher(cls, topic, publisher_qos(info.offered_qos))
         self.clock_pub = None
-        if clock and CLOCK_TOPIC not in self.publishers:
+        if clock and CLOCK not in self.publishers:
             from rosgraph_msgs.msg import Clock
             self._clock_cls = Clock
-            self.clock_pub = node.create_publisher(Clock, CLOCK_TOPIC, QoSProfile(depth=10))
+            self.clock_pub = node.create_publisher(Clock, CLOCK, QoSProfile(depth=10))
         if not self.report.ok:
             node.get_logger().warning(self.report.describe_loss() + " Replaying what could be read.")
 
