@@ -203,19 +203,23 @@ def bag_messages(path: str) -> int:
 
 
 def _node_main(fn, args):
+    """Run ``fn(node, args)``; it returns the executor it spun the node with, if any, for the teardown."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
+
+    from flagbot_sim.ros.runtime import release
     rclpy.init()
     node = rclpy.create_node(f"bag_test_{args.mode}", namespace=args.ns)
+    executor = None
     try:
-        fn(node, args)
+        executor = fn(node, args)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
         if rclpy.ok():       # publishing after SIGINT/SIGTERM shut the context down is the normal end
             raise
     finally:
-        node.destroy_node()
+        release(executor, node)
         rclpy.try_shutdown()
 
 
@@ -323,8 +327,7 @@ def _selfrecord(node, args):
     while rec.writer.message_count < args.count and time.monotonic() < end and rclpy.ok():
         ex.spin_once(timeout_sec=0.05)
     print(rec.close().format(), flush=True)
-    ex.remove_node(node)
-    ex.shutdown()
+    return ex
 
 
 def main(argv=None):
