@@ -162,18 +162,15 @@ def stamp_ns(msg) -> int | None:
 # processes
 
 
-Proc = ChildProcess
+def record(out: str, *args: str) -> ChildProcess:
+    return ChildProcess("-m", "flagbot_sim.ros.recorder", "-o", out, *args)
 
 
-def record(out: str, *args: str) -> Proc:
-    return Proc("-m", "flagbot_sim.ros.recorder", "-o", out, *args)
+def start_helper(*args: str) -> ChildProcess:
+    return ChildProcess(os.path.abspath(__file__), *args)
 
 
-def start_helper(*args: str) -> Proc:
-    return Proc(os.path.abspath(__file__), *args)
-
-
-def wait_for(predicate, timeout: float, what: str, proc: Proc | None = None):
+def wait_for(predicate, timeout: float, what: str, proc: ChildProcess | None = None):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         v = predicate()
