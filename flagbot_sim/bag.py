@@ -57,7 +57,7 @@ from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, M
                           Statistics)
 from mcap.writer import CompressionType, Writer
 
-from .ros.names import CLOCK, CMD_OMEGA  # plain names, no ROS import
+from .topics import CLOCK, CMD_OMEGA  # plain names, no ROS import
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 PROFILE = "ros2"
@@ -335,7 +335,7 @@ def source_revision() -> str:
 
 
 def _json_default(o):
-    from .cli import json_default
+    from .cliutil import json_default
     try:
         return json_default(o)
     except TypeError:

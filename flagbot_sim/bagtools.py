@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of, recover
-from .ros.names import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
+from .topics import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -29,7 +29,7 @@ RPM = 2.0 * math.pi / 60.0
 
 def add_record_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("topics", nargs="*", help="topics to record (relative names follow --namespace); default: every "
-                                             "flagbot topic (flagbot_sim.ros.names.DEFAULT_RECORD_TOPICS)")
+                                             "flagbot topic (flagbot_sim.topics.DEFAULT_RECORD_TOPICS)")
     p.add_argument("-o", "--output", help="output .mcap file (default: flagbot_YYYYmmdd_HHMMSS.mcap)")
     p.add_argument("-a", "--all", action="store_true", help="record every topic currently or later visible")
     p.add_argument("--exclude", action="append", metavar="REGEX", help="do not record topics matching REGEX")
@@ -326,7 +326,7 @@ def plot_summary(s: dict, out: str | Path) -> None:
 
 
 def cmd_summary(args) -> int:
-    from .cli import json_default
+    from .cliutil import json_default
     try:
         s = summarize(args.bag, namespace=args.namespace, tail=args.tail, time_axis=args.time)
     except BagError as exc:

@@ -7,29 +7,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import math
 import sys
 
+from .cliutil import add_scene_arguments, dumps
 from .scene import RPM, SceneError, load_scene
 
 #: modules that contribute subcommands (each has register(subparsers)); missing ones are skipped
 COMMAND_MODULES = ["flagbot_sim.beam.cli", "flagbot_sim.ros.demo", "flagbot_sim.bench", "flagbot_sim.sweep",
                    "flagbot_sim.bagtools"]
-
-
-def add_scene_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", help="built-in scene name (design1, design2, clamped_flagellum) or a .toml path")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scene value, e.g. --set robot.n_flagella=3 --set motor.omega_rpm=150")
-
-
-def json_default(o):
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    if hasattr(o, "item"):
-        return o.item()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def cmd_run(args) -> int:
@@ -63,7 +49,7 @@ def cmd_run(args) -> int:
     if error:
         out["error"] = error
     if args.json:
-        print(json.dumps(out, default=json_default))
+        print(dumps(out))
     else:
         print(format_summary(scene, out))
     return 1 if error else 0

@@ -21,7 +21,7 @@ import numpy as np
 from . import world
 from .bag import BagReader, find_topic
 from .physics import Simulation
-from .ros.names import HEAD_POSE, JOINT_STATES
+from .topics import HEAD_POSE, JOINT_STATES
 from .scene import SceneError, node_overrides, scene_from_dict
 
 

@@ -29,7 +29,7 @@ def parse_rpm_list(text: str) -> list[float]:
 
 
 def register(subparsers) -> None:
-    from ..cli import add_scene_arguments
+    from ..cliutil import add_scene_arguments
     p = subparsers.add_parser("beam", help="beam-theory estimate (LB / NLB w/o head / NLB) of omega_h, omega_t "
                                            "and speed for motor speeds omega_T")
     add_scene_arguments(p)
@@ -43,7 +43,7 @@ def register(subparsers) -> None:
 
 
 def cmd_beam(args) -> int:
-    from ..cli import json_default
+    from ..cliutil import json_default
     scene = load_scene(args.scene, args.overrides)
     params = BeamParams.from_scene(scene)
     rpms = parse_rpm_list(args.omega_rpm) if args.omega_rpm is not None else [scene.motor.omega_rpm]

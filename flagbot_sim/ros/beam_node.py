@@ -20,7 +20,8 @@ from std_msgs.msg import Float64
 
 from ..beam import REGIMES, BeamParams, solve_balance
 from ..scene import SceneError
-from . import convert, names
+from . import convert
+from .. import topics as names
 from .params import ParamSpec, command_refusal, declare, help_text, node_scene, refusal, scene_request
 from .runtime import run_node, wants_help
 

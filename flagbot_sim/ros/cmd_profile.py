@@ -19,9 +19,9 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64
 
-from ..profile import ProfileError, parse
+from ..motor_profile import ProfileError, parse
 from ..scene import RPM
-from . import names
+from .. import topics as names
 from .runtime import run_node, user_args
 
 

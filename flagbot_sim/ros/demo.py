@@ -81,7 +81,7 @@ def format_table(rows: list[dict], scene: str, n: int, regime: str) -> str:
 
 
 def cmd_demo(args) -> int:
-    from ..profile import parse
+    from ..motor_profile import parse
     scene = load_scene(args.scene, node_overrides(args.n, []))
     n = scene.robot.n_flagella
     rpms = [float(x) for x in args.rpm.split(",") if x.strip()]
@@ -143,7 +143,7 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from . import names
+    from .. import topics as names
 
     rclpy.init()
     node = Node("flagbot_demo_monitor")

@@ -7,7 +7,7 @@ Two ways to use it:
 - inside an existing node (the sim_node's ``record`` parameter): ``Recorder(node, path, topics, metadata)``, then
   ``close()`` when done. It creates its subscriptions and one timer on that node and runs a small flush thread.
 
-Topics: the default list :data:`flagbot_sim.ros.names.DEFAULT_RECORD_TOPICS` (relative names resolved in the
+Topics: the default list :data:`flagbot_sim.topics.DEFAULT_RECORD_TOPICS` (relative names resolved in the
 node's namespace), an explicit list, or :data:`ALL` (every topic visible in the graph). A topic is subscribed once
 it has a publisher, so its type comes from the graph and the subscription QoS can match the publishers': RELIABLE
 only if every publisher is reliable (a reliable reader does not match a best-effort writer), TRANSIENT_LOCAL if
@@ -38,7 +38,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
                    WriteSummary, normalize_type, qos_to_yaml)
-from .names import DEFAULT_RECORD_TOPICS
+from ..topics import DEFAULT_RECORD_TOPICS
 from .runtime import SLICE, release, ros_process
 
 #: pass as ``topics`` to record every topic visible in the graph

@@ -28,7 +28,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..bag import BagError, BagReader, ScanReport
-from .names import CLOCK
+from ..topics import CLOCK
 from .recorder import message_class
 from .runtime import SLICE, release, ros_process
 

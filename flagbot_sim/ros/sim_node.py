@@ -28,7 +28,8 @@ from .. import __version__, world
 from ..bag import BagError
 from ..physics import Simulation, StepFailed
 from ..scene import SceneError
-from . import convert, names
+from . import convert
+from .. import topics as names
 from .params import ParamSpec, command_refusal, declare, help_text, node_scene, scene_request
 from .runtime import run_node, wants_help
 

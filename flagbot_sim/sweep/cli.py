@@ -24,7 +24,7 @@ def _on_sigterm(signum, frame):
 
 
 def register(subparsers) -> None:
-    from ..cli import add_scene_arguments
+    from ..cliutil import add_scene_arguments
     p = subparsers.add_parser(
         "sweep", help="parameter sweep: DER to steady state and the beam balance (LB, NLB w/o head, NLB) at every "
                       "grid point, one tidy CSV, resumable, plus the paper's figures",
