@@ -8,6 +8,7 @@ from typing import Callable
 import numpy as np
 
 from ..scene import Scene
+from . import kernels
 from .model import RobotModel
 from .observe import Observer, quaternion_from_matrix
 from .stepper import Stepper, StepStats
@@ -182,7 +183,8 @@ class Simulation:
             "newton_iterations": self.newton_iterations,
             "dt_reductions": self.reductions,
             "wall_seconds": self.wall_seconds,
-            "real_time_factor": self.state.t / self.wall_seconds if self.wall_seconds > 0 else float("inf"),
+            "real_time_factor": self.state.t / self.wall_seconds if self.wall_seconds > 0 else None,
+            "kernels": "compiled" if kernels.AVAILABLE else "python",
         }
         if self.scene.clamped:
             F, T = self.medium_force_on_flagella()
