@@ -97,3 +97,25 @@ def test_scene_without_head_effects_builds_no_head_objects():
     assert m_bare.pattern.nnz <= m_full.pattern.nnz
     assert len(m_bare.pattern.slots) == len(m_full.pattern.slots) - len(
         [b for e in m_full.effects if e.name in ("inertia", "head_drag", "head_torque") for b in e.blocks()])
+
+
+def test_one_registry_names_every_effect():
+    """The scene's allowed effect names are the physics registry's, each class carries its own name, and an
+    effect is built by its class's from_scene for exactly the names a scene lists."""
+    from flagbot_sim import scene as scene_mod
+    from flagbot_sim.physics.effects import EFFECT_TYPES, Effect
+    assert list(scene_mod.EFFECTS) == list(EFFECT_TYPES)
+    assert all(cls.name == name and cls.description and issubclass(cls, Effect) for name, cls in EFFECT_TYPES.items())
+    assert set(scene_mod.HEAD_EFFECTS) == {n for n, c in EFFECT_TYPES.items() if c.on_head}
+    m = RobotModel(load_scene("design1", [f"scene.effects={ALL_FREE}"]))
+    assert [type(e) for e in m.effects] == [EFFECT_TYPES[n] for n in eval(ALL_FREE)]
+    with pytest.raises(scene_mod.SceneError, match="unknown effect 'viscous'.*valid effects: inertia, rft"):
+        load_scene("design1", ["scene.effects=['rft', 'viscous']"])
+
+
+def test_an_effect_must_fill_the_blocks_it_declared():
+    """No silent zero Jacobian blocks: slots for fewer (or more) blocks than declared is an error."""
+    m = RobotModel(load_scene("design1"))
+    rft = m.effect("rft")
+    with pytest.raises(ValueError, match="declared 3 Jacobian blocks, got 2"):
+        rft.bind(rft.slots[:2])
