@@ -369,6 +369,17 @@ def _bend_twist_energy(x, theta, fr, hs, twist_hinge, twist_offset):
 
 
 # ----------------------------------------------------------------------------------------------- the model
+def spring_dofs(net: RodNetwork) -> tuple[np.ndarray, np.ndarray]:
+    """DOFs of every stretching spring (Ne, 6: both end nodes) and bend-twist hinge (H, 11: [x_a, x_b, x_c,
+    theta_ea, theta_eb]): the elastic blocks of the Jacobian pattern."""
+    E = net.edges
+    hn, he = net.hinge_nodes, net.hinge_edges
+    stretch = np.concatenate([net.node_dofs(E[:, 0]), net.node_dofs(E[:, 1])], axis=1)
+    hinge = np.concatenate([net.node_dofs(hn[:, 0]), net.node_dofs(hn[:, 1]), net.node_dofs(hn[:, 2]),
+                            net.edge_dof(he)], axis=1)
+    return stretch, hinge
+
+
 class ElasticModel:
     """Stretching + bend-twist springs of a :class:`RodNetwork`.
 
@@ -382,10 +393,7 @@ class ElasticModel:
         self.n_nodes = N
         self.ndof = net.ndof
         E = net.edges
-        self.stretch_dofs = np.concatenate([net.node_dofs(E[:, 0]), net.node_dofs(E[:, 1])], axis=1)  # (Ne, 6)
-        hn, he = net.hinge_nodes, net.hinge_edges
-        self.hinge_dofs = np.concatenate([net.node_dofs(hn[:, 0]), net.node_dofs(hn[:, 1]),
-                                          net.node_dofs(hn[:, 2]), net.edge_dof(he)], axis=1)  # (H, 11)
+        self.stretch_dofs, self.hinge_dofs = spring_dofs(net)
         self.sign = net.hinge_sign
         self.k_bend = net.EI / net.voronoi
         self.k_twist = net.GJ / net.voronoi

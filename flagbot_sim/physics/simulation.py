@@ -7,6 +7,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import warmup
 from .model import RobotModel
 from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector
 from .stepper import Stepper, StepStats
@@ -16,6 +17,8 @@ class Simulation:
     def __init__(self, scene, steady_window: float | None = None, steady_rtol: float | None = None):
         """``steady_window`` / ``steady_rtol``: the steady-state rule's window (s) and tolerance (default: the
         scene's ``observe`` section)."""
+        #: time spent compiling (first run) or loading the kernels in this process: not simulation time
+        self.compile_seconds = warmup.ensure_compiled()
         self.scene = scene
         self.model = RobotModel(scene)
         self.stepper = Stepper(self.model)
@@ -204,6 +207,7 @@ class Simulation:
             "dt_reductions": self.reductions,
             "wall_seconds": self.wall_seconds,
             "real_time_factor": self.state.t / self.wall_seconds if self.wall_seconds > 0 else None,
+            "compile_seconds": self.compile_seconds,
             "kernels": "python" if _jit_disabled() else "compiled",
         }
         if self.scene.clamped:

@@ -115,6 +115,35 @@ def _predict_cylindrical(x, v, v_prev, h1, h2, c1, c0, second, i0, i1, i2, out):
         out[k, 2] = cn2 + s_new * a2 + r_new * (cp * u2 + sp * w2)
 
 
+def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: int) -> np.ndarray:
+    """Newton's starting point: the last steps' motion continued to second order (Newton divided differences
+    over the last three configurations), in cylindrical coordinates (axial, radial, azimuth) about the robot
+    axis (through the nodes ``axis_nodes``: front, centre, back) for every node off that axis. Every part of the
+    robot turns about the axis, and for a steady rotation this is exact, where a Cartesian extrapolation cuts
+    the chord and stretches the stiff plate by ~R (omega h)^3 (design 2: several newtons of residual and two
+    extra Newton iterations per step)."""
+    h1, h2 = state.h, state.h_prev
+    if h1 <= 0.0:
+        return state.q + h * state.v
+    second = h2 > 0.0 and state.v_prev is not None
+    # extrapolation weights for f(t_n + h) from the slopes d1 (last step) and d0 (the one before)
+    c1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)      # coefficient of d1
+    c0 = -h * (h + h1) / (h1 + h2) if second else 0.0             # coefficient of d0
+    q = state.q + c1 * state.v + (c0 * state.v_prev if second else 0.0)   # twist angles, nodes on the axis
+    N = n_nodes
+    x = state.q[: 3 * N].reshape(N, 3)
+    v = state.v[: 3 * N].reshape(N, 3)
+    vp = state.v_prev[: 3 * N].reshape(N, 3) if second else v
+    i0, i1, i2 = axis_nodes
+    _predict_cylindrical(x, v, vp, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2, q[: 3 * N].reshape(N, 3))
+    return q
+
+
+def axis_nodes(net) -> tuple[int, int, int]:
+    """(front, centre, back) points of the robot axis for the predictor: the head, or the plate centre alone."""
+    return tuple(int(i) for i in net.head_nodes) if len(net.head_nodes) else (int(net.joint_node),) * 3
+
+
 class Stepper:
     def __init__(self, model: RobotModel, integrator: str = "implicit_euler"):
         self.model = model
@@ -133,8 +162,7 @@ class Stepper:
         self._fix_slots, self._fix_diag = self.pattern.fix_rows_mask(self.fixed)
         self._scale = model.scale
         self.solver = make_solver(model, num.linear_solver)
-        # (front, centre, back) points of the robot axis for the predictor: the head, or the plate centre alone
-        self._axis_nodes = (tuple(net.head_nodes) if len(net.head_nodes) else (net.joint_node,) * 3)
+        self._axis_nodes = axis_nodes(net)
 
     # ------------------------------------------------------------------
     def step(self, state: State, dt: float) -> tuple[State, StepStats]:
@@ -228,27 +256,7 @@ class Stepper:
         return None
 
     def predict(self, state: State, h: float) -> np.ndarray:
-        """Newton's starting point: the last steps' motion continued to second order (Newton divided differences
-        over the last three configurations), in cylindrical coordinates (axial, radial, azimuth) about the robot
-        axis for every node off that axis. Every part of the robot turns about the axis, and for a steady
-        rotation this is exact, where a Cartesian extrapolation cuts the chord and stretches the stiff plate by
-        ~R (omega h)^3 (design 2: several newtons of residual and two extra Newton iterations per step)."""
-        h1, h2 = state.h, state.h_prev
-        if h1 <= 0.0:
-            return state.q + h * state.v
-        second = h2 > 0.0 and state.v_prev is not None
-        # extrapolation weights for f(t_n + h) from the slopes d1 (last step) and d0 (the one before)
-        c1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)      # coefficient of d1
-        c0 = -h * (h + h1) / (h1 + h2) if second else 0.0             # coefficient of d0
-        q = state.q + c1 * state.v + (c0 * state.v_prev if second else 0.0)   # twist angles, nodes on the axis
-        N = self.model.net.n_nodes
-        x = state.q[: 3 * N].reshape(N, 3)
-        v = state.v[: 3 * N].reshape(N, 3)
-        vp = state.v_prev[: 3 * N].reshape(N, 3) if second else v
-        i0, i1, i2 = self._axis_nodes
-        _predict_cylindrical(x, v, vp, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2,
-                             q[: 3 * N].reshape(N, 3))
-        return q
+        return predict(state, h, self._axis_nodes, self.model.net.n_nodes)
 
     def _accept(self, state: State, plan: StepPlan, ctx, stats: StepStats, iterations: int) -> State:
         stats.newton_iterations += iterations
