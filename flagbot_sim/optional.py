@@ -59,6 +59,14 @@ def available(extra: str) -> bool:
     return importlib.util.find_spec(EXTRAS[extra][0]) is not None
 
 
+def missing_ros(exc: ImportError, purpose: str) -> MissingExtra | None:
+    """The ``ros`` extra's MissingExtra when ``exc`` is ROS 2 itself being absent (rclpy, a message package),
+    else None: the caller re-raises anything else."""
+    if isinstance(exc, ModuleNotFoundError) and (exc.name or "").split(".")[0] in ROS_MODULES:
+        return MissingExtra("ros", purpose)
+    return None
+
+
 def ros_entry(module: str, prog: str):
     """A console-script ``main`` for a ROS process: without ROS 2 it prints one line and exits 1 instead of a
     traceback; otherwise it runs ``module.main``."""
@@ -66,9 +74,9 @@ def ros_entry(module: str, prog: str):
         try:
             mod = importlib.import_module(module)
         except ModuleNotFoundError as exc:
-            if (exc.name or "").split(".")[0] not in ROS_MODULES:
+            if (missing := missing_ros(exc, prog)) is None:
                 raise
-            print(MissingExtra("ros", prog), file=sys.stderr)
+            print(missing, file=sys.stderr)
             return 1
         return mod.main()
     main.__name__ = main.__qualname__ = prog

@@ -219,15 +219,21 @@ def test_launch_file_names_only_what_the_installed_package_has(prefix):
 
 
 # ----------------------------------------------------------------------------------- optional parts, missing
-def test_a_ros_process_without_ros_says_so_in_one_line_naming_the_extra():
+@pytest.mark.parametrize("call, prog", [
+    ("from flagbot_sim.optional import sim_node; sys.exit(sim_node())", "sim_node"),
+    ("from flagbot_sim.cli import main; sys.exit(main(['record', '-o', 'x.mcap']))", "flagbot record"),
+    ("from flagbot_sim.cli import main; sys.exit(main(['replay', 'x.mcap']))", "flagbot replay"),
+])
+def test_a_ros_command_without_ros_says_so_in_one_line_naming_the_extra(call, prog, tmp_path):
     # None in sys.modules is Python's own way to make an import fail as if the module were not installed
-    code = "import sys; sys.modules['rclpy'] = None; from flagbot_sim.optional import sim_node; sys.exit(sim_node())"
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                       env=dict(os.environ, PYTHONPATH=str(ROOT)), cwd=ROOT)
+    p = subprocess.run([sys.executable, "-c", f"import sys; sys.modules['rclpy'] = None; {call}"],
+                       capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                       cwd=tmp_path)
     assert p.returncode == 1 and p.stdout == ""
     assert p.stderr.count("\n") == 1, p.stderr
-    assert p.stderr.startswith("sim_node needs ROS 2 Jazzy (rclpy)")
-    assert "source /opt/ros/jazzy/setup.bash, or pip install 'flagbot_sim[ros]'" in p.stderr
+    assert f"{prog} needs ROS 2 Jazzy (rclpy), which {sys.executable} cannot import" in p.stderr
+    assert p.stderr.rstrip().endswith("source /opt/ros/jazzy/setup.bash, or pip install 'flagbot_sim[ros]'")
+    assert not (tmp_path / "x.mcap").exists()
 
 
 def test_require_names_the_extra_only_when_the_extra_itself_is_missing(tmp_path, monkeypatch):
