@@ -152,7 +152,8 @@ def test_ros2_run_executables_run_the_installing_python_not_path_python3(prefix,
     assert p.returncode == 0, f"exit {p.returncode}: {p.stderr}"
     assert "usage" in p.stdout.lower()
     console = prefix / "bin" / exe
-    assert console.read_text().splitlines()[0] == f"#!{sys.executable}"   # pip wrote the installing interpreter
+    # pip wrote the installing interpreter into it (as "#!path", or through /bin/sh when the path is too long)
+    assert sys.executable in "\n".join(console.read_text().splitlines()[:3])
     if exe == "sim_node":       # its help points at the installed interface pages
         docs = prefix / "share" / PACKAGE / "msg_docs"
         assert f"{docs}/" in p.stdout and (docs / "sim_node.md").is_file()
