@@ -33,6 +33,7 @@ INSTALL_REQUIRES = [
     "numpy>=1.24",
     "scipy>=1.10",              # sparse LU, solve_bvp (beam estimator, reference rod), optimisation
     "numba>=0.60",              # the compiled kernels of the hot path: required (NUMBA_DISABLE_JIT=1 to debug)
+    "llvmlite",                 # numba's own; imported directly to bind scipy's LAPACK for the compiled solver
     "mcap>=1.1",                # recordings in rosbag2's MCAP layout
     "mcap-ros2-support>=0.5",   # decoding recorded ROS 2 messages (bag-summary, replay)
     "zstandard",                # compressed MCAP chunks (mcap's own dependencies, imported directly by bag.py)

@@ -22,17 +22,19 @@ from flagbot_sim import optional
 
 # third-party top-level module -> (distribution that provides it, extra it belongs to; None = install_requires)
 MODULES = {
-    "numpy": ("numpy", None), "scipy": ("scipy", None), "numba": ("numba", None), "mcap": ("mcap", None),
+    "numpy": ("numpy", None), "scipy": ("scipy", None), "numba": ("numba", None), "llvmlite": ("llvmlite", None),
+    "mcap": ("mcap", None),
     "mcap_ros2": ("mcap-ros2-support", None), "zstandard": ("zstandard", None), "lz4": ("lz4", None),
     "matplotlib": ("matplotlib", None),
     "dask": ("dask", "dask"), "distributed": ("dask", "dask"),      # dask[distributed] brings both
     "elastica": ("pyelastica", "bench"), "foxglove": ("foxglove-sdk", "view"),
     **{m: ("ros-jazzy-rclpy", "ros") for m in optional.ROS_MODULES},
 }
-# distribution -> its rosdep key in package.xml; mcap, zstandard and lz4 come through pip with mcap-ros2-support
+# distribution -> its rosdep key in package.xml; mcap, zstandard and lz4 come through pip with mcap-ros2-support,
+# llvmlite with python3-numba (apt's numba depends on python3-llvmlite)
 ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "matplotlib": "python3-matplotlib",
                "numba": "python3-numba", "mcap-ros2-support": "mcap-ros2-support", "mcap": None,
-               "zstandard": None, "lz4": None}
+               "zstandard": None, "lz4": None, "llvmlite": None}
 
 
 def third_party_imports() -> dict[str, set[str]]:
