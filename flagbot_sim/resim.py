@@ -13,13 +13,14 @@ round-off. Pose (``head_pose``), omega_h and omega_t (``joint_states``) are comp
 from __future__ import annotations
 
 import math
+import sys
 import tomllib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import world
-from .bag import BagReader, find_topic
+from .bag import BagError, BagReader, find_topic
 from .physics import Simulation
 from .topics import HEAD_POSE, JOINT_STATES
 from .scene import SceneError, node_overrides, scene_from_dict
@@ -169,3 +170,21 @@ def format_report(res: Resimulation, path) -> str:
               f"omega_h {res.max_omega_h_error:.3e} rad/s, omega_t {res.max_omega_t_error:.3e} rad/s"]
     lines += [f"  note: {n}" for n in res.notes]
     return "\n".join(lines)
+
+
+def cmd_resimulate(args) -> int:
+    """``flagbot replay --resimulate BAG [--json] [--namespace NS]`` (and the ``replay`` console script's)."""
+    from .progress import ProgressBar
+    try:
+        bar = ProgressBar(100.0, label="re-simulating", unit="%", enabled=not args.json)
+        res = resimulate(args.bag, args.namespace or None, progress=lambda f: bar.update(100.0 * f))
+        bar.close()
+    except (BagError, ResimulationError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        import json
+        print(json.dumps({"bag": str(args.bag), **res.to_dict()}))
+    else:
+        print(format_report(res, args.bag))
+    return 0

@@ -195,6 +195,44 @@ def bag_messages(path: str) -> int:
         return 0
 
 
+@dataclasses.dataclass
+class RunRecord:
+    """A recorded run reduced to what a command-driven re-simulation needs: the run metadata (scene, parameters,
+    version) and the command stream. Times in seconds: ``t`` = log (receive) time since the first message of the
+    bag, ``sim_t`` = simulation time from the recorded /clock at that moment (None without /clock)."""
+    path: str
+    metadata: object                                     # flagbot_sim.bag.RunMetadata or None
+    start_ns: int | None
+    cmd_omega: list[tuple[float, float | None, float]]  # (t, sim_t, omega_T rad/s)
+    report: object                                       # flagbot_sim.bag.ScanReport
+
+    @property
+    def scene_toml(self) -> str:
+        return self.metadata.scene_toml if self.metadata else ""
+
+    @property
+    def parameters(self) -> dict:
+        return self.metadata.parameters if self.metadata else {}
+
+
+def read_run(path, namespace: str | None = None) -> RunRecord:
+    """Scene, parameters and the decoded ``cmd_omega`` stream with log and simulation times, put together from
+    the bag package's parts (run metadata, topic lookup by relative name, one-pass decoding, /clock mapping)."""
+    from flagbot_sim.bag import BagReader, SimTimeMap, find_topic
+    from flagbot_sim.topics import CLOCK, CMD_OMEGA
+    with BagReader(path) as r:
+        rep = r.report
+        meta = r.run_metadata()
+        cmds = []
+        topic = find_topic(r.topics, CMD_OMEGA, namespace)
+        if topic is not None:
+            rows = r.decoded_many([topic, CLOCK])
+            smap = SimTimeMap.from_rows(rows[CLOCK])
+            for lt, _, m in rows[topic]:
+                cmds.append(((lt - rep.start_ns) * 1e-9, float(smap(lt)) if smap else None, float(m.data)))
+        return RunRecord(str(r.path), meta, rep.start_ns, cmds, rep)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # the node side (runs in child processes)
 

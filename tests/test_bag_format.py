@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from bag_testlib import TOPIC_TYPES, full_topic, make_message, stamp_ns, to_plain
+from bag_testlib import TOPIC_TYPES, full_topic, make_message, read_run, stamp_ns, to_plain
 from cli_helpers import flagbot
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -379,7 +379,7 @@ def test_bag_summary_cli_prints_json_and_writes_the_plot(tmp_path):
 def test_read_run_gives_what_a_resimulation_needs(tmp_path):
     path = tmp_path / "steps.mcap"
     write_step_bag(path)
-    run = bag.read_run(path)
+    run = read_run(path)
     assert run.parameters == {"rate": 100} and "omega_rpm" in run.scene_toml
     assert [c[2] for c in run.cmd_omega] == [5.0, 10.0, 10.0, 15.0]
     assert [c[1] for c in run.cmd_omega] == pytest.approx([1.0, 3.0, 4.0, 6.0], abs=1e-6)   # sim time

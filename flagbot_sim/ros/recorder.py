@@ -39,6 +39,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
                    WriteSummary, normalize_type, qos_to_yaml)
 from ..topics import DEFAULT_RECORD_TOPICS
+from .bag_args import add_record_arguments, console_main
 from .runtime import SLICE, release, ros_process
 
 #: pass as ``topics`` to record every topic visible in the graph
@@ -281,7 +282,6 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``record`` console script: ``record [TOPIC ...] [-o out.mcap] [--all] ... [--ros-args ...]``."""
-    from ..bagtools import add_record_arguments, console_main
     return console_main("record", "Record flagbot topics to an MCAP file (rosbag2 layout).", add_record_arguments, run, argv)
 
 
