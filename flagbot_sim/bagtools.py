@@ -109,6 +109,9 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
         raise BagError(f"--tail must be in (0, 1], got {tail}")
     with BagReader(path) as r:
         rep = r.report
+        if rep.messages == 0:      # nothing to summarise: say so, never an empty table that looks like success
+            raise BagError(f"nothing recoverable: {rep.describe_loss()}" if not rep.ok else
+                           f"{r.path}: the recording holds no message: nothing to summarise")
         meta = r.run_metadata()
         topics = r.topics
         cmd_topic = find_topic(topics, CMD_OMEGA, namespace)
@@ -215,12 +218,15 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_summary(s: dict, out: str | Path) -> None:
-    """PNG of v, omega_h, omega_t over time, with the step boundaries and the steady windows."""
+def summary_figure(s: dict):
+    """v, omega_h, omega_t over time, with the step boundaries and the steady windows, and a legend saying what
+    the shaded windows and the lines in them are (a matplotlib Figure; the caller closes it)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 7.5))
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 8.0))
     panels = [("speed", 1e3, "v (mm/s)"), ("omega_h", 1.0, "omega_h (rad/s)"), ("omega_t", 1.0, "omega_t (rad/s)")]
     keys = {"speed": "v", "omega_h": "omega_h", "omega_t": "omega_t"}
     for ax, (name, scale, label) in zip(axes, panels):
@@ -243,7 +249,23 @@ def plot_summary(s: dict, out: str | Path) -> None:
                              xycoords=("data", "axes fraction"), fontsize=8, va="bottom")
     axes[-1].set_xlabel(f"{s['time_axis']} time (s)")
     fig.suptitle(Path(s["path"]).name, y=0.995)
-    fig.tight_layout()
+    handles = [Line2D([], [], color="C0", lw=1.0),
+               Patch(facecolor="C1", alpha=0.12),
+               Line2D([], [], color="C1", lw=2),
+               Line2D([], [], color="0.6", ls=":", lw=0.8)]
+    labels = ["recorded value",
+              f"steady window: the last {100 * s['tail']:.0f} % of each omega_T step",
+              "steady value: mean over the window",
+              "omega_T step (new command)"]
+    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return fig
+
+
+def plot_summary(s: dict, out: str | Path) -> None:
+    """PNG of :func:`summary_figure`."""
+    import matplotlib.pyplot as plt
+    fig = summary_figure(s)
     fig.savefig(out, dpi=110)
     plt.close(fig)
 

@@ -376,6 +376,39 @@ def test_bag_summary_cli_prints_json_and_writes_the_plot(tmp_path):
     assert r.returncode == 0 and "omega_T steps" in r.stdout and "/bot/cmd_omega" in r.stdout
 
 
+def test_bag_summary_plot_says_what_its_shaded_windows_are(tmp_path):
+    from flagbot_sim.bagtools import summarize, summary_figure
+    path = tmp_path / "steps.mcap"
+    write_step_bag(path)
+    fig = summary_figure(summarize(path, tail=0.4))
+    texts = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert "steady window: the last 40 % of each omega_T step" in texts
+    assert "steady value: mean over the window" in texts and "omega_T step (new command)" in texts
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+
+
+def test_bag_summary_with_nothing_recoverable_exits_non_zero_with_a_message(tmp_path):
+    """A recording killed before its first message was flushed, and an empty but intact one: no table that looks
+    like success, but an error naming the file (and, for the damaged one, what was lost)."""
+    from std_msgs.msg import Float64
+    killed = tmp_path / "killed.mcap"
+    w = BagWriter(tmp_path / "writing.mcap", metadata=RunMetadata(scene_toml="[robot]\n"))
+    w.add_topic("/t/omega_h", "std_msgs/msg/Float64")
+    w.flush()                                               # header, metadata, schema, channel on disk; no message
+    killed.write_bytes((tmp_path / "writing.mcap").read_bytes())
+    w.write("/t/omega_h", serialize_message(Float64(data=1.0)), 10**12)
+    w.close()
+    empty = tmp_path / "empty.mcap"
+    BagWriter(empty).close()
+    for path, why, extra in ((killed, "not closed properly", []), (empty, "holds no message", ["--json"])):
+        r = flagbot("bag-summary", str(path), *extra)
+        assert r.returncode != 0 and r.stdout == "", (path, r.stdout)
+        assert r.stderr.startswith("error: ") and str(path) in r.stderr and why in r.stderr, r.stderr
+        assert "Traceback" not in r.stderr
+    assert scan(killed).messages == 0 and scan(empty).ok
+
+
 def test_read_run_gives_what_a_resimulation_needs(tmp_path):
     path = tmp_path / "steps.mcap"
     write_step_bag(path)

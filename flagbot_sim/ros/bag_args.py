@@ -52,8 +52,9 @@ def add_replay_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--namespace", default="")
     p.add_argument("--node-name", default="flagbot_replay")
     p.add_argument("--resimulate", action="store_true",
-                   help="no ROS: feed the recorded commands to a fresh simulator with the recorded scene and report "
-                        "the largest difference in pose, omega_h and omega_t against the recording")
+                   help="no ROS: feed the recorded commands to a fresh simulator with the recorded scene, report "
+                        "the largest difference in pose, omega_h and omega_t against the recording and a verdict "
+                        "(exit 1 when it exceeds the solver tolerance)")
     p.add_argument("--json", action="store_true", help="with --resimulate: print the report as JSON")
 
 
