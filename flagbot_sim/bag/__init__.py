@@ -13,8 +13,8 @@ above it in this list:
 - :mod:`.reader`   :class:`BagReader`, :func:`scan` and :func:`recover`, record by record, tolerating damage;
 - :mod:`.lookup`   topics by relative name (:func:`find_topic`), log time -> simulation time (:class:`SimTimeMap`).
 """
-from .format import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, RUN_METADATA_NAME, BagError, InterfaceNotFound,
-                     NotMcapError)
+from .format import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, RUN_METADATA_NAME, BagError, BagWriteError,
+                     InterfaceNotFound, NotMcapError)
 from .lookup import SimTimeMap, find_topic, namespace_of
 from .metadata import RunMetadata, package_version, source_revision
 from .qos import QosInfo, qos_from_yaml, qos_to_yaml
@@ -22,8 +22,8 @@ from .reader import BagMessage, BagReader, Damage, ScanReport, TopicInfo, recove
 from .schema import cdr_header_stamp_ns, has_header, message_definition, normalize_type, split_type
 from .writer import BagWriter, TopicStats, WriteSummary
 
-__all__ = ["BagError", "NotMcapError", "InterfaceNotFound", "BagWriter", "BagReader", "BagMessage", "RunMetadata",
-           "ScanReport", "Damage", "TopicInfo", "TopicStats", "QosInfo", "WriteSummary", "message_definition",
+__all__ = ["BagError", "BagWriteError", "NotMcapError", "InterfaceNotFound", "BagWriter", "BagReader", "BagMessage",
+           "RunMetadata", "ScanReport", "Damage", "TopicInfo", "TopicStats", "QosInfo", "WriteSummary", "message_definition",
            "normalize_type", "split_type", "has_header", "cdr_header_stamp_ns", "qos_to_yaml", "qos_from_yaml",
            "scan", "recover", "find_topic", "namespace_of", "SimTimeMap", "package_version", "source_revision",
            "DEFAULT_FLUSH_INTERVAL", "DEFAULT_CHUNK_SIZE", "RUN_METADATA_NAME"]

@@ -28,11 +28,16 @@ LIBRARY = "flagbot_sim.bag"
 #: chunks are closed at this size even between flushes (rosbag2 uses 768 KiB; smaller = less lost on a crash)
 DEFAULT_CHUNK_SIZE = 256 * 1024
 #: a chunk is closed and flushed to the OS at least this often (s): the most a SIGKILL can lose
-DEFAULT_FLUSH_INTERVAL = 0.5
+DEFAULT_FLUSH_INTERVAL = 0.1
 
 
 class BagError(Exception):
     """A recording cannot be read or written. The message says why, in terms a user can act on."""
+
+
+class BagWriteError(BagError, OSError):
+    """A recording cannot be created or written (no such directory, no permission, disk full, file too large).
+    Both a BagError and an OSError, so either ``except`` clause catches it."""
 
 
 class NotMcapError(BagError):

@@ -8,6 +8,7 @@ decoded on its own when an earlier one is damaged. The OS page cache survives SI
 """
 from __future__ import annotations
 
+import errno
 import os
 import threading
 import time
@@ -20,9 +21,16 @@ from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
 from .format import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, LIBRARY, MESSAGE_ENCODING, PROFILE,
-                     ROSBAG2_METADATA_NAME, RUN_METADATA_NAME, SCHEMA_ENCODING, BagError)
+                     ROSBAG2_METADATA_NAME, RUN_METADATA_NAME, SCHEMA_ENCODING, BagError, BagWriteError)
 from .metadata import RunMetadata, rosbag2_serialized_metadata
 from .schema import cdr_header_stamp_ns, has_header, message_definition, normalize_type
+
+
+def _describe(exc: OSError) -> str:
+    """'No space left on device (ENOSPC)' rather than '[Errno 28] No space left on device'."""
+    name = errno.errorcode.get(exc.errno or 0, "")
+    text = exc.strerror or str(exc)
+    return f"{text} ({name})" if name else text
 
 
 @dataclass
@@ -42,7 +50,7 @@ class WriteSummary:
     duration: float
     size_bytes: int
     closed: bool
-    error: str | None = None
+    error: str = ""             # "" when every write succeeded
 
     def format(self) -> str:
         lines = [f"{self.path}: {self.messages} messages, {len(self.topics)} topics, {self.duration:.2f} s, "
@@ -59,32 +67,46 @@ class BagWriter:
     """Write serialized ROS 2 messages to an MCAP file as rosbag2 does. Thread-safe.
 
     ``path`` is a file path (``.mcap`` is appended if missing) or a binary file object. ``metadata`` (a
-    :class:`RunMetadata` or a plain string map) is written first. A write error (e.g. disk full) stops the
-    recording: :attr:`error` says why, everything flushed before stays recoverable with :func:`recover`.
+    :class:`RunMetadata` or a plain string map) is written first, and flushed: a target that cannot be created or
+    written (no such directory, no permission, a full disk, a file size limit) raises :class:`BagWriteError` (an
+    ``OSError`` and a :class:`BagError`) right here and leaves no file behind. A write error later (e.g. disk full)
+    stops the recording: :attr:`error` says why (once; it stays set), nothing more is written, and everything
+    flushed before stays recoverable with :func:`recover`.
+
+    Crash loss: the chunk being filled is closed and flushed when ``flush_interval`` has passed since the last
+    flush, by the next :meth:`write` or by whoever calls :meth:`maybe_flush` at :meth:`seconds_to_flush` (the
+    recorder's flush thread); and when it reaches ``chunk_size``.
     """
 
     def __init__(self, path: str | os.PathLike | BinaryIO, *, metadata: RunMetadata | Mapping[str, str] | None = None,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = "zstd",
                  flush_interval: float = DEFAULT_FLUSH_INTERVAL, fsync_interval: float | None = None,
                  overwrite: bool = False, clock: Callable[[], float] = time.monotonic):
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE,
+                "": CompressionType.NONE}.get(compression)
+        if comp is None:
+            raise BagError(f"unknown compression {compression!r} (zstd, lz4, none)")
+        run_record = None
+        if metadata is not None:    # before the file exists: a bad key must not leave one behind
+            run_record = metadata.to_record() if isinstance(metadata, RunMetadata) else dict(metadata)
         if isinstance(path, (str, os.PathLike)):
             p = Path(path)
             if p.suffix != ".mcap":
                 p = p.with_name(p.name + ".mcap")
             if p.exists() and not overwrite:
-                raise BagError(f"{p} exists; choose another name or allow overwriting")
-            p.parent.mkdir(parents=True, exist_ok=True)
+                raise BagWriteError(f"{p} exists; choose another name or allow overwriting")
+            if not p.parent.is_dir():
+                raise BagWriteError(f"cannot record to {p}: directory {p.parent} does not exist")
             self.path = str(p)
-            self._file = open(p, "wb")
+            try:
+                self._file = open(p, "wb")
+            except OSError as exc:
+                raise BagWriteError(f"cannot record to {p}: {_describe(exc)}") from None
             self._owns_file = True
         else:
             self.path = getattr(path, "name", "<stream>")
             self._file = path
             self._owns_file = False
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE,
-                "": CompressionType.NONE}.get(compression)
-        if comp is None:
-            raise BagError(f"unknown compression {compression!r} (zstd, lz4, none)")
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=comp, enable_crcs=True)
         self._lock = threading.RLock()
         self._clock = clock
@@ -99,26 +121,43 @@ class BagWriter:
         self._pending = 0
         self._last_flush = clock()
         self._last_fsync = self._last_flush
-        self.error: str | None = None
+        self.error = ""
         self.closed = False
         self._guard(self._writer.start, PROFILE, LIBRARY)
         self._guard(self._writer.add_metadata, ROSBAG2_METADATA_NAME,
                     {"serialized_metadata": rosbag2_serialized_metadata(Path(self.path).name)})
-        if metadata is not None:
-            self.add_metadata(RUN_METADATA_NAME, metadata.to_record() if isinstance(metadata, RunMetadata)
-                              else dict(metadata))
+        if run_record is not None:
+            self.add_metadata(RUN_METADATA_NAME, run_record)
         self.flush()
+        if self.error:
+            self._abandon()
+            raise BagWriteError(f"cannot record to {self.path}: {_describe(self._failure)}")
 
     # -- internals
     def _guard(self, fn, *args) -> bool:
-        if self.error is not None:
+        if self.error:
             return False
         try:
             fn(*args)
             return True
-        except OSError as exc:  # disk full, I/O error: stop, keep what is on disk
-            self.error = f"write failed after {self.message_count} messages: {exc}"
+        except OSError as exc:  # disk full, file too large, I/O error: stop (once), keep what is on disk
+            self._failure = exc
+            self.error = (f"writing {self.path} failed after {self.message_count} messages: {_describe(exc)}; "
+                          f"nothing more is recorded")
             return False
+
+    def _abandon(self) -> None:
+        """The file could not even take its header: close it and remove it (nothing in it is worth keeping)."""
+        self.closed = True
+        if self._owns_file:
+            try:
+                self._file.close()
+            except OSError:
+                pass
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
 
     def _write_raw_record(self, record) -> None:
         # Schemas and channels are also written outside chunks: a chunk can then be decoded on its own
@@ -160,7 +199,7 @@ class BagWriter:
               sequence: int = 0) -> bool:
         """Append one serialized message. ``publish_time_ns`` defaults to the header stamp (or the log time)."""
         with self._lock:
-            if self.closed or self.error is not None:
+            if self.closed or self.error:
                 return False
             cid = self._channels.get(topic)
             if cid is None:
@@ -184,15 +223,25 @@ class BagWriter:
         with self._lock:
             self._guard(self._writer.add_metadata, name, {str(k): str(v) for k, v in data.items()})
 
+    def seconds_to_flush(self) -> float:
+        """Time until :meth:`maybe_flush` is due (0 when it is): when a flush thread should call it next."""
+        with self._lock:
+            return max(0.0, self._last_flush + self.flush_interval - self._clock())
+
     def maybe_flush(self) -> None:
-        """Close the current chunk and flush if ``flush_interval`` has passed; call it from a timer too."""
+        """Close the current chunk and flush if ``flush_interval`` has passed since the last flush; call it from a
+        timer or thread too, at :meth:`seconds_to_flush`. With nothing pending the interval starts again, so a
+        message written after a quiet spell is flushed at most ``flush_interval`` later."""
         with self._lock:
             now = self._clock()
-            if self._pending and now - self._last_flush >= self.flush_interval:
-                self.flush()
+            if now - self._last_flush >= self.flush_interval:
+                if self._pending:
+                    self.flush()
+                else:
+                    self._last_flush = now
             if self.fsync_interval is not None and now - self._last_fsync >= self.fsync_interval:
                 self._last_fsync = now
-                if self._owns_file and self.error is None:
+                if self._owns_file and not self.error:
                     try:
                         os.fsync(self._file.fileno())
                     except OSError:
@@ -212,7 +261,7 @@ class BagWriter:
         size = os.path.getsize(self.path) if self._owns_file and os.path.exists(self.path) else 0
         return WriteSummary(self.path, self.message_count, dict(self.stats),
                             (max(lasts) - min(firsts)) * 1e-9 if firsts else 0.0, size,
-                            self.closed and self.error is None, self.error)
+                            self.closed and not self.error, self.error)
 
     def close(self) -> WriteSummary:
         """Write the summary, indexes and footer (the file is then complete) and close it."""
