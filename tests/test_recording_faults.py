@@ -98,3 +98,13 @@ def test_standalone_record_on_a_full_disk_logs_one_error_and_exits_non_zero(tmp_
     # contiguous from the first recorded message; what was lost is at most the last flush interval's worth
     assert got == list(range(got[0], got[0] + len(got)))
     assert written - len(got) <= 2000 * 0.25, (written, len(got))
+
+
+def test_standalone_record_refuses_a_target_it_cannot_write(tmp_path):
+    """`flagbot record -o` into a directory that does not exist: one line naming it, exit 2, nothing created."""
+    from cli_helpers import flagbot
+    r = flagbot("record", "-o", str(tmp_path / "typo" / "run.mcap"), timeout=60)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert f"error: cannot record to {tmp_path / 'typo' / 'run.mcap'}: directory {tmp_path / 'typo'} does not exist" \
+        in r.stderr and "Traceback" not in r.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -9,7 +9,6 @@ raises :class:`NotMcapError` with a message naming what it looks like instead.
 """
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import io
 import mmap
@@ -124,12 +123,6 @@ class ScanReport:
         else:
             parts.append("no message could be recovered")
         return f"{self.path}: " + "; ".join(parts) + "."
-
-    def to_json(self) -> dict:
-        return {"path": self.path, "size": self.size, "messages": self.messages, "duration": self.duration,
-                "start_ns": self.start_ns, "end_ns": self.end_ns, "closed": self.closed, "ok": self.ok,
-                "lost_bytes": self.lost_bytes, "lost_messages": self.lost_messages,
-                "damage": [dataclasses.asdict(d) for d in self.damage], "loss": self.describe_loss()}
 
 
 @dataclass
