@@ -23,7 +23,7 @@ from .schema import cdr_header_stamp_ns, has_header, message_definition, normali
 from .writer import BagWriter, TopicStats, WriteSummary
 
 __all__ = ["BagError", "BagWriteError", "NotMcapError", "InterfaceNotFound", "BagWriter", "BagReader", "BagMessage",
-           "RunMetadata", "ScanReport", "Damage", "TopicInfo", "TopicStats", "QosInfo", "WriteSummary", "message_definition",
-           "normalize_type", "split_type", "has_header", "cdr_header_stamp_ns", "qos_to_yaml", "qos_from_yaml",
-           "scan", "recover", "find_topic", "namespace_of", "SimTimeMap", "package_version", "source_revision",
-           "DEFAULT_FLUSH_INTERVAL", "DEFAULT_CHUNK_SIZE", "RUN_METADATA_NAME"]
+           "RunMetadata", "ScanReport", "Damage", "TopicInfo", "TopicStats", "QosInfo", "WriteSummary",
+           "message_definition", "normalize_type", "split_type", "has_header", "cdr_header_stamp_ns", "qos_to_yaml",
+           "qos_from_yaml", "scan", "recover", "find_topic", "namespace_of", "SimTimeMap", "package_version",
+           "source_revision", "DEFAULT_FLUSH_INTERVAL", "DEFAULT_CHUNK_SIZE", "RUN_METADATA_NAME"]
