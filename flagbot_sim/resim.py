@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import world
 from .bag import BagError, BagReader, find_topic
 from .physics import Simulation
 from .topics import HEAD_POSE, JOINT_STATES
@@ -165,7 +164,6 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
     notes += more
     sim = Simulation(scene)
     dt = scene.time.dt
-    origin = sim.observer.position(sim.initial)
     sim.set_omega(schedule[0][1])
     next_cmd = 1
     err_x = err_h = err_t = 0.0
@@ -183,13 +181,12 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
             continue
         if sim.steps == 0:
             continue                                   # before the first step there is no rate to compare
-        ob = sim.observer
-        err_h = max(err_h, abs(ob.rate_h - m.velocity[0]))
-        err_t = max(err_t, abs(ob.rate_t - m.velocity[1]))
+        snap = sim.snapshot()            # the observation sim_node published, made by the same function
+        err_h = max(err_h, abs(snap.omega_h - m.velocity[0]))
+        err_t = max(err_t, abs(snap.omega_t - m.velocity[1]))
         p = poses.get(round(target, 9))
         if p is not None:
-            w = world.to_world(ob.position(sim.state), origin)
-            err_x = max(err_x, float(np.linalg.norm(w - np.array([p.x, p.y, p.z]))))
+            err_x = max(err_x, float(np.linalg.norm(snap.position - np.array([p.x, p.y, p.z]))))
         if progress is not None:
             progress(target / t[-1])
     return Resimulation(samples=sum(m is not None for m in samples), duration=float(t[-1]), commands=schedule, max_position_error=err_x,
