@@ -65,8 +65,17 @@ class MotorSection:
 
 @dataclass(frozen=True)
 class TimeSection:
-    dt: float = _f(1.0e-2, "s", "time step", gt=0.0, le=10.0)
+    dt: float = _f(1.0e-2, "s", "time step (with time.rtol > 0: the first and the largest step)", gt=0.0, le=10.0)
     duration: float = _f(20.0, "s", "simulated time of a CLI run", gt=0.0)
+    integrator: str = _f("implicit_euler", "", "time integrator: 'implicit_euler' (first order, the paper's) or "
+                                               "'bdf2' (second order, L-stable)",
+                         choices=("implicit_euler", "bdf2"))
+    rtol: float = _f(0.0, "", "error control: relative local error per step (0 = fixed steps of time.dt)",
+                     ge=0.0, lt=1.0)
+    atol: float = _f(1.0e-9, "m", "error control: absolute floor of the local error (twist angles: divided by "
+                                  "the edge length)", gt=0.0, le=1.0)
+    max_turn: float = _f(0.5, "rad", "largest angle the motor (or clamp) turns in one step: smaller steps are "
+                                     "taken at high speed, so no speed aliases", gt=0.0, le=3.0)
 
 
 @dataclass(frozen=True)

@@ -34,11 +34,13 @@ class State:
     h_prev: float = 0.0           # size of the step before that
     q_prev: np.ndarray | None = None   # DOFs and velocities one step back
     v_prev: np.ndarray | None = None
+    q_prev2: np.ndarray | None = None  # DOFs two steps back (the error estimate of a second-order integrator)
+    h_next: float = 0.0           # the step size error control proposes next (0: none yet)
 
     def copy(self) -> "State":
+        c = lambda a: None if a is None else a.copy()   # noqa: E731
         return State(self.t, self.q.copy(), self.v.copy(), self.frames.copy(), self.drive_angle, self.h,
-                     self.h_prev, None if self.q_prev is None else self.q_prev.copy(),
-                     None if self.v_prev is None else self.v_prev.copy())
+                     self.h_prev, c(self.q_prev), c(self.v_prev), c(self.q_prev2), self.h_next)
 
 
 @dataclass

@@ -54,11 +54,19 @@ class Simulation:
         d.omega = float(omega_T)
 
     # ---------------------------------------------------------------- stepping
-    def step(self, dt: float | None = None) -> StepStats:
-        """Advance by dt (default: the scene's). Raises StepFailed and keeps the state if Newton fails."""
-        dt = self.dt if dt is None else dt
+    @property
+    def adaptive(self) -> bool:
+        """Error-controlled steps (time.rtol > 0): each step picks its own size."""
+        return self.stepper.adaptive
+
+    def step(self, dt: float | None = None, t_end: float = math.inf) -> StepStats:
+        """Advance by dt (default: the scene's time.dt; with error control, one step of the size it picks, never
+        past t_end). Raises StepFailed and keeps the state if Newton fails."""
         w0 = time.perf_counter()
-        new, stats = self.stepper.step(self.state, dt)
+        if dt is None and self.stepper.adaptive:
+            new, stats = self.stepper.step_adaptive(self.state, t_end)
+        else:
+            new, stats = self.stepper.step(self.state, self.dt if dt is None else dt)
         self.wall_seconds += time.perf_counter() - w0
         self.observer.record(self.state, new)
         self._prev_state = self.state
@@ -72,6 +80,15 @@ class Simulation:
         return stats
 
     def run(self, duration: float, callback: Callable[["Simulation"], None] | None = None) -> None:
+        """Advance by ``duration`` of simulated time: whole steps of time.dt (rounded to a whole number of them),
+        or error-controlled steps ending exactly at the end."""
+        if self.stepper.adaptive:
+            t_end = self.time + duration
+            while self.time < t_end - 1e-12 * max(1.0, abs(t_end)):
+                self.step(t_end=t_end)
+                if callback is not None:
+                    callback(self)
+            return
         n = max(1, int(round(duration / self.dt)))
         for _ in range(n):
             self.step()

@@ -1,5 +1,5 @@
-"""Time integration: an integrator (implicit Euler, the paper's), Newton's method on the sparse Jacobian with a
-line search, and adaptive sub-stepping on failure.
+"""Time integration: integrators (implicit Euler, the paper's; BDF2, second order), Newton's method on the
+sparse Jacobian with a line search, fixed steps with sub-stepping on failure, and error-controlled steps.
 
 An integrator turns a committed state and a step size h into a :class:`~.model.StepPlan`: the trial velocity
 and acceleration as affine functions of the trial DOFs. Implicit Euler (paper Eq. DER3D_EOM):
@@ -8,8 +8,10 @@ and acceleration as affine functions of the trial DOFs. Implicit Euler (paper Eq
 
 :meth:`Stepper.step` always advances the state by exactly the requested dt. If Newton does not converge (or
 produces a non-finite value) the attempt is discarded, the sub-step is halved and retried; after a success the
-sub-step grows back by doubling. Below ``numerics.min_dt`` the step fails loudly with :class:`StepFailed` and the
-caller keeps its last good state: a step never returns NaN or Inf.
+sub-step grows back by doubling. :meth:`Stepper.step_adaptive` takes one step whose local error estimate (each
+integrator's Milne estimate) meets ``time.rtol`` / ``time.atol``, choosing its size. Below ``numerics.min_dt``
+either fails loudly with :class:`StepFailed` and the caller keeps its last good state: a step never returns NaN
+or Inf.
 """
 from __future__ import annotations
 
@@ -37,10 +39,14 @@ class StepStats:
     reductions: int = 0            # how many times the sub-step was halved
     line_search_cuts: int = 0
     substep_dts: list = field(default_factory=list)   # the accepted sub-steps, in order (s)
+    rejections: int = 0            # error control: attempts rejected for their error estimate
+    error: float = 0.0             # error control: the accepted step's error norm (<= 1)
 
 
 class ImplicitEuler:
-    """First order, L-stable: the paper's integrator (and what reproduces its numerics)."""
+    """First order, L-stable: the paper's integrator (and what reproduces its numerics).
+
+    v = (q - q_n) / h,  a = (v - v_n) / h."""
     name = "implicit_euler"
     order = 1
 
@@ -50,15 +56,76 @@ class ImplicitEuler:
         return StepPlan(h=h, t=state.t + h, dv_dq=ih, v0=v0, da_dq=ih * ih, a0=ih * (v0 - state.v),
                         drive_angle=drive_angle)
 
+    def error(self, state: State, h: float, q_new: np.ndarray) -> np.ndarray | None:
+        """Local error estimate of q_new (Milne's device against a linear extrapolation); None without history.
 
-INTEGRATORS = {ImplicitEuler.name: ImplicitEuler}
+        The extrapolation misses the solution by y''/2 h (h + h1) and implicit Euler by y''/2 h^2 on the other
+        side, so err = (q_new - q_pred) h / (2 h + h1)."""
+        if state.q_prev is None or state.h <= 0.0:
+            return None
+        h1 = state.h
+        q_pred = state.q + (h / h1) * (state.q - state.q_prev)
+        return (q_new - q_pred) * (h / (2.0 * h + h1))
+
+
+class BDF2:
+    """Second order, L-stable, variable step (the two-step backward differentiation formula).
+
+    Why this one: the robot is a stiff elastic-viscous system (rigid parts 1e3 times stiffer than the flagella,
+    overdamped by the medium), so the integrator must damp the stiff modes completely (L-stability: implicit
+    midpoint and the trapezoidal rule are only A-stable and make them ring, sign-flipping every step); it must be
+    second order where implicit Euler is first, because the velocity of a rotating part is what RFT and the head
+    terms see and implicit Euler turns its direction by omega h / 2 per step; and it must cost one Newton solve
+    per step with the Jacobian structure unchanged (TR-BDF2 and SDIRK methods need two or more). Its velocity is
+    a three-point backward difference,
+
+        v_(n+1) = [c0 q_(n+1) - (1 + w) q_n + w^2 / (1 + w) q_(n-1)] / h,   c0 = (1 + 2 w) / (1 + w), w = h / h_n,
+
+    and the acceleration the same formula applied to v. Zero-stable for step ratios w < 1 + sqrt(2); the error
+    control grows steps by at most 2. The first step (no history) is an implicit Euler step."""
+    name = "bdf2"
+    order = 2
+
+    def plan(self, state: State, h: float, drive_angle: float) -> StepPlan:
+        if state.q_prev is None or state.h <= 0.0:
+            return ImplicitEuler.plan(self, state, h, drive_angle)
+        w = h / state.h
+        c0 = (1.0 + 2.0 * w) / (1.0 + w)
+        c1 = -(1.0 + w)
+        c2 = w * w / (1.0 + w)
+        dv = c0 / h
+        v0 = (c1 * state.q + c2 * state.q_prev) / h
+        g = (c1 * state.v + c2 * state.v_prev) / h
+        return StepPlan(h=h, t=state.t + h, dv_dq=dv, v0=v0, da_dq=dv * dv, a0=dv * v0 + g, drive_angle=drive_angle)
+
+    def error(self, state: State, h: float, q_new: np.ndarray) -> np.ndarray | None:
+        """Local error estimate of q_new (Milne's device against the quadratic through the last three states).
+
+        With y3 the third derivative, the extrapolation misses the solution by y3/6 h (h + h1)(h + h1 + h2) and
+        the BDF2 step by y3/6 h^2 (h + h1) / c0 on the other side, so
+        err = (q_new - q_pred) (h / c0) / (h / c0 + h + h1 + h2): 2/11 of the difference at constant steps."""
+        if state.q_prev2 is None or state.h <= 0.0 or state.h_prev <= 0.0:
+            return None
+        h1, h2 = state.h, state.h_prev
+        T0, T1, x = -(h1 + h2), -h1, h                 # times of q_prev2, q_prev (q at 0), relative to t_n
+        L0 = (x - T1) * x / ((T0 - T1) * T0)
+        L1 = (x - T0) * x / ((T1 - T0) * T1)
+        L2 = (x - T0) * (x - T1) / (T0 * T1)
+        q_pred = L0 * state.q_prev2 + L1 * state.q_prev + L2 * state.q
+        c0 = (1.0 + 2.0 * h / h1) / (1.0 + h / h1)
+        f = (h / c0) / (h / c0 + h + h1 + h2)
+        return (q_new - q_pred) * f
+
+
+INTEGRATORS = {cls.name: cls for cls in (ImplicitEuler, BDF2)}
 
 
 # ----------------------------------------------------------------------------------------------- predictor
 @njit(cache=True)
-def _predict_cylindrical(x, v, v_prev, h1, h2, c1, c0, second, i0, i1, i2, out):
+def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
     """Second-order extrapolation of node positions in cylindrical coordinates about the robot axis (see
-    Stepper.predict). ``out`` holds the Cartesian prediction on entry (kept for nodes on the axis)."""
+    :func:`predict`), from the positions x, xp, xpp at t_n, t_n - h1, t_n - h1 - h2. ``out`` holds the Cartesian
+    prediction on entry (kept for nodes on the axis)."""
     if i0 != i2:
         a0, a1, a2 = x[i2, 0] - x[i0, 0], x[i2, 1] - x[i0, 1], x[i2, 2] - x[i0, 2]
         na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
@@ -69,8 +136,8 @@ def _predict_cylindrical(x, v, v_prev, h1, h2, c1, c0, second, i0, i1, i2, out):
     C = np.empty((3, 3))                                        # the centre at the three times
     for i in range(3):
         C[0, i] = x[i1, i]
-        C[1, i] = C[0, i] - h1 * v[i1, i]
-        C[2, i] = C[1, i] - h2 * v_prev[i1, i] if second else C[1, i]
+        C[1, i] = xp[i1, i]
+        C[2, i] = xpp[i1, i] if second else C[1, i]
     P = np.empty((3, 3))
     S = np.empty(3)
     R = np.empty((3, 3))
@@ -78,8 +145,8 @@ def _predict_cylindrical(x, v, v_prev, h1, h2, c1, c0, second, i0, i1, i2, out):
     for k in range(x.shape[0]):
         for i in range(3):
             P[0, i] = x[k, i]
-            P[1, i] = P[0, i] - h1 * v[k, i]
-            P[2, i] = P[1, i] - h2 * v_prev[k, i] if second else P[1, i]
+            P[1, i] = xp[k, i]
+            P[2, i] = xpp[k, i] if second else P[1, i]
         ok = True
         for j in range(3):
             p0, p1, p2 = P[j, 0] - C[j, 0], P[j, 1] - C[j, 1], P[j, 2] - C[j, 2]
@@ -116,26 +183,29 @@ def _predict_cylindrical(x, v, v_prev, h1, h2, c1, c0, second, i0, i1, i2, out):
 
 
 def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: int) -> np.ndarray:
-    """Newton's starting point: the last steps' motion continued to second order (Newton divided differences
-    over the last three configurations), in cylindrical coordinates (axial, radial, azimuth) about the robot
-    axis (through the nodes ``axis_nodes``: front, centre, back) for every node off that axis. Every part of the
-    robot turns about the axis, and for a steady rotation this is exact, where a Cartesian extrapolation cuts
-    the chord and stretches the stiff plate by ~R (omega h)^3 (design 2: several newtons of residual and two
-    extra Newton iterations per step)."""
+    """Newton's starting point: the last three states' motion continued to second order (Newton divided
+    differences of the DOFs themselves, whatever the integrator's velocity formula), in cylindrical coordinates
+    (axial, radial, azimuth) about the robot axis (through the nodes ``axis_nodes``: front, centre, back) for
+    every node off that axis. Every part of the robot turns about the axis, and for a steady rotation this is
+    exact, where a Cartesian extrapolation cuts the chord and stretches the stiff plate by ~R (omega h)^3
+    (design 2: several newtons of residual and two extra Newton iterations per step)."""
     h1, h2 = state.h, state.h_prev
-    if h1 <= 0.0:
+    if h1 <= 0.0 or state.q_prev is None:
         return state.q + h * state.v
-    second = h2 > 0.0 and state.v_prev is not None
-    # extrapolation weights for f(t_n + h) from the slopes d1 (last step) and d0 (the one before)
-    c1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)      # coefficient of d1
-    c0 = -h * (h + h1) / (h1 + h2) if second else 0.0             # coefficient of d0
-    q = state.q + c1 * state.v + (c0 * state.v_prev if second else 0.0)   # twist angles, nodes on the axis
+    second = h2 > 0.0 and state.q_prev2 is not None
+    d1 = (state.q - state.q_prev) / h1                          # slope over the last step
+    d0 = (state.q_prev - state.q_prev2) / h2 if second else d1  # and over the one before
+    # extrapolation weights for f(t_n + h) from the slopes d1 and d0
+    c1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)
+    c0 = -h * (h + h1) / (h1 + h2) if second else 0.0
+    q = state.q + c1 * d1 + c0 * d0                             # twist angles, nodes on the axis
     N = n_nodes
     x = state.q[: 3 * N].reshape(N, 3)
-    v = state.v[: 3 * N].reshape(N, 3)
-    vp = state.v_prev[: 3 * N].reshape(N, 3) if second else v
+    x1 = state.q_prev[: 3 * N].reshape(N, 3)
+    x2 = state.q_prev2[: 3 * N].reshape(N, 3) if second else x1
     i0, i1, i2 = axis_nodes
-    _predict_cylindrical(x, v, vp, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2, q[: 3 * N].reshape(N, 3))
+    _predict_cylindrical(x, x1, x2, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2,
+                         q[: 3 * N].reshape(N, 3))
     return q
 
 
@@ -145,9 +215,21 @@ def axis_nodes(net) -> tuple[int, int, int]:
 
 
 class Stepper:
-    def __init__(self, model: RobotModel, integrator: str = "implicit_euler"):
+    """Advances a State: fixed steps (``step``) or error-controlled ones (``step_adaptive``).
+
+    The scene's ``time`` section chooses the integrator (``time.integrator``), the error control (``time.rtol``
+    > 0, with the absolute floor ``time.atol`` in metres) and the largest angle the drive may turn in one step
+    (``time.max_turn``): a step never turns the motor further, so no speed aliases (at 5000 rpm and dt = 1e-2 s
+    the motor would turn 5.2 rad per step and the run would show the 1000-rpm state mirrored)."""
+
+    def __init__(self, model: RobotModel, integrator: str | None = None):
         self.model = model
-        self.integrator = INTEGRATORS[integrator]()
+        tm = model.scene.time
+        self.integrator = INTEGRATORS[integrator or tm.integrator]()
+        self.rtol = float(tm.rtol)
+        self.atol = float(tm.atol)
+        self.max_turn = float(tm.max_turn)
+        self.dt_max = float(tm.dt)
         num = model.scene.numerics
         # A residual cannot be resolved below the round-off of the stiffest spring: a relative error of machine
         # epsilon in an edge length times its stretching stiffness. Asking for less only burns iterations.
@@ -163,12 +245,33 @@ class Stepper:
         self._scale = model.scale
         self.solver = make_solver(model, num.linear_solver)
         self._axis_nodes = axis_nodes(net)
+        # error norm: per node (3 DOFs) and per twist angle, prescribed DOFs excluded
+        N = net.n_nodes
+        free = np.ones(net.ndof, bool)
+        free[self.fixed] = False
+        self._free_nodes = free[: 3 * N].reshape(N, 3).all(axis=1)
+        self._free_twist = free[3 * N:]
+        self._atol_twist = self.atol / model.length_scale
 
-    # ------------------------------------------------------------------
+    @property
+    def adaptive(self) -> bool:
+        return self.rtol > 0.0
+
+    def _turn_limit(self) -> float:
+        """Largest step (s) for which the drive turns at most max_turn."""
+        d = self.model.driver
+        w = abs(d.omega) if d is not None else 0.0
+        return self.max_turn / w if w > 0.0 else math.inf
+
+    # ------------------------------------------------------------------ fixed steps
     def step(self, state: State, dt: float) -> tuple[State, StepStats]:
+        """Advance by exactly dt: in equal sub-steps if the drive would turn more than max_turn, halved (then
+        grown back) where Newton fails."""
         stats = StepStats(dt_min=dt)
+        n_turn = max(1, math.ceil(dt / self._turn_limit() - 1e-9))
+        h_cap = dt / n_turn
         remaining = dt
-        h = dt
+        h = h_cap
         cur = state
         while remaining > 1e-12 * dt:
             h = min(h, remaining)
@@ -179,18 +282,69 @@ class Stepper:
                 h *= 0.5
                 stats.reductions += 1
                 if h < self.min_dt:
-                    raise StepFailed(
-                        f"Newton did not converge at t = {cur.t:.6g} s even with dt = {2 * h:.3g} s "
-                        f"(numerics.min_dt = {self.min_dt:g} s, last residual {stats.residual:.3g} N, "
-                        f"tolerance {self.tol:.3g} N)")
+                    raise self._failed(cur, 2 * h, stats)
                 continue
             cur = new
             remaining -= h
             stats.substeps += 1
             stats.substep_dts.append(h)
             stats.dt_min = min(stats.dt_min, h)
-            h = min(2.0 * h, dt)
+            h = min(2.0 * h, h_cap)
         return cur, stats
+
+    # ------------------------------------------------------------------ error-controlled steps
+    def step_adaptive(self, state: State, t_end: float = math.inf) -> tuple[State, StepStats]:
+        """One accepted step whose local error estimate is within (rtol, atol); its size is chosen by the
+        controller (never beyond t_end, time.dt or the turn limit). The next size is proposed in the new
+        state's ``h_next``."""
+        p = self.integrator.order
+        h = min(state.h_next or self.dt_max, self.dt_max, self._turn_limit())
+        h_end = t_end - state.t
+        if h >= h_end:
+            h = h_end
+        elif h > 0.5 * h_end:
+            h = 0.5 * h_end       # two similar steps rather than a long one and a sliver
+        stats = StepStats(dt_min=h)
+        while True:
+            new = self._attempt(state, h, stats)
+            if new is None:
+                factor = 0.25
+                stats.reductions += 1
+            else:
+                err = self.integrator.error(state, h, new.q)
+                norm = self.error_norm(err, new.q, state.q) if err is not None else 0.0
+                if norm <= 1.0:
+                    grow = 2.0 if norm == 0.0 else min(2.0, max(1.0, 0.9 * norm ** (-1.0 / (p + 1))))
+                    new.h_next = min(grow * h, self.dt_max)
+                    stats.error = norm
+                    stats.substeps = 1
+                    stats.substep_dts.append(h)
+                    stats.dt_min = h
+                    return new, stats
+                factor = max(0.2, 0.9 * norm ** (-1.0 / (p + 1)))
+                stats.rejections += 1
+            h *= factor
+            if h < self.min_dt:
+                raise self._failed(state, h / factor, stats)
+
+    def error_norm(self, err: np.ndarray, q_new: np.ndarray, q_old: np.ndarray) -> float:
+        """RMS over nodes and twist angles of |error| / (atol + rtol |displacement over the step|).
+
+        Relative to the step's own displacement, so that the error of a turning part is measured against its
+        motion (what RFT and the head drag see), not against its distance from the origin."""
+        N = self.model.net.n_nodes
+        d = q_new - q_old
+        e_x = np.sqrt(np.sum(err[: 3 * N].reshape(N, 3) ** 2, axis=1))[self._free_nodes]
+        d_x = np.sqrt(np.sum(d[: 3 * N].reshape(N, 3) ** 2, axis=1))[self._free_nodes]
+        e_t = np.abs(err[3 * N:])[self._free_twist]
+        d_t = np.abs(d[3 * N:])[self._free_twist]
+        ratios = np.concatenate([e_x / (self.atol + self.rtol * d_x), e_t / (self._atol_twist + self.rtol * d_t)])
+        return float(np.sqrt(np.mean(ratios ** 2))) if len(ratios) else 0.0
+
+    def _failed(self, state: State, h: float, stats: StepStats) -> StepFailed:
+        return StepFailed(f"Newton did not converge at t = {state.t:.6g} s even with dt = {h:.3g} s "
+                          f"(numerics.min_dt = {self.min_dt:g} s, last residual {stats.residual:.3g} N, "
+                          f"tolerance {self.tol:.3g} N)")
 
     # ------------------------------------------------------------------
     def _norm(self, r: np.ndarray) -> float:
@@ -261,4 +415,4 @@ class Stepper:
     def _accept(self, state: State, plan: StepPlan, ctx, stats: StepStats, iterations: int) -> State:
         stats.newton_iterations += iterations
         return State(plan.t, ctx.q, ctx.v, EdgeFrames.of(ctx.frames), plan.drive_angle, plan.h, state.h, state.q,
-                     state.v)
+                     state.v, state.q_prev)

@@ -77,7 +77,7 @@ def warm_solver() -> None:
     rft.node_forces(ctx.x, v)
     t, _ = unit_rows(net.nodes[net.edges[:, 1]] - net.nodes[net.edges[:, 0]])
     fr = EdgeFrames.initial(t, net.n_hinges)
-    st = State(0.0, q, v, fr, 0.0, 1e-2, 1e-2, q.copy(), v.copy())
+    st = State(0.0, q, v, fr, 0.0, 1e-2, 1e-2, q.copy(), v.copy(), q.copy())
     predict(st, 1e-2, axis_nodes(net), N)
     e = np.arange(2)
     twist_for_director(fr.d1[e], fr.t[e], t[e], fr.d1[e] @ np.eye(3).T, q[e])
