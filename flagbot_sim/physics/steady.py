@@ -1,0 +1,403 @@
+"""Steady swimming without time stepping: the robot's relative equilibrium, solved directly by Newton.
+
+At steady state every part of the robot moves rigidly about the axis (lab x): the shaft, plate and flagella turn
+at omega_t about +x, the head body at -omega_h (omega_h + omega_t = omega_T, the motor), and the whole robot
+translates at U along x (forward speed v = -U: the head leads towards -x). The shape is fixed in the frame
+turning with each part, so one configuration q, seen at the instant the motor's drive angle is zero, together
+with (omega_t, U) is a static nonlinear problem:
+
+    R(q, omega_t, U) = grad E(q) - F(q, v(q), a(q)) = 0,      with, for a node x of a part turning at Omega,
+    v = Omega e_x x x + U e_x,   a = -Omega^2 (0, y, z),   and for an edge's twist angle d(theta)/dt = Omega e_x.t
+
+(the twist rate of a rigidly turning material frame seen from a time-parallel transported reference frame,
+which has no spin about its tangent). The residual is exactly the time stepper's, with these velocities instead
+of the integrator's: the same springs, RFT, head drag and torque, inertia as centripetal load. The problem is
+invariant under translation along x and rotation about x; the two gauge conditions (head centre's x, the first
+plate rim's z) fix them, and the two equations they free are the axial force and torque balance, which
+determine U and omega_t. The clamped flagellum has neither (the clamp holds the plate): its unknowns are the
+shape alone.
+
+Newton's Jacobian: the effects' own Jacobians, evaluated three times with the integrator coefficients set to
+(dv/dq, da/dq) = (0, 0), (1, 0), (0, 1), separate the explicit position dependence from dF/dv and dF/da; the
+chain rule through the rigid-motion velocity field then gives dR/dq exactly (tests check it by finite
+differences), and dR/d(omega_t, U) are dF/dv and dF/da applied to dv/d(omega_t, U). Continuation in omega_T from
+the straight robot makes it robust: when Newton fails, the step in omega_T is halved.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .effects import StepContext
+from .frames import EdgeFrames
+from .model import RobotModel, State
+
+
+class SteadyFailed(RuntimeError):
+    """No relative equilibrium was found; the message says at which omega_T and why."""
+
+
+@dataclass
+class Stability:
+    """Linear stability of an equilibrium in the overdamped limit (see :meth:`SteadySolver.stability`)."""
+    stable: bool
+    rate: float                  # 1/s: the largest real part of the perturbations' growth rates (< 0: decay)
+    rates: list                  # the slowest few growth rates found (1/s), largest real part first
+
+    def to_dict(self) -> dict:
+        return {"stable": self.stable, "slowest_rate": self.rate,
+                "slowest_time_constant": (-1.0 / self.rate) if self.rate < 0 else None}
+
+
+@dataclass
+class SteadySolution:
+    omega_T: float               # rad/s
+    omega_t: float               # rad/s, flagella (shaft, plate) about +x
+    omega_h: float               # rad/s, head about -x
+    v: float                     # m/s, forward speed (positive = head first)
+    q: np.ndarray                # the configuration at drive angle 0
+    velocity: np.ndarray         # DOF velocities of the rigid motion
+    frames: EdgeFrames           # reference frames of q
+    residual: float              # final scaled residual (N)
+    iterations: int              # Newton iterations over the whole continuation
+    continuation: list = field(default_factory=list)   # omega_T values solved on the way
+    wall_seconds: float = 0.0
+
+
+class SteadySolver:
+    """Relative equilibria of one scene (its RobotModel): ``solve(omega_T)``."""
+
+    def __init__(self, model: RobotModel, tol: float | None = None, max_iterations: int = 30):
+        self.model = model
+        net = model.net
+        self.net = net
+        self.clamped = model.scene.clamped
+        N = net.n_nodes
+        self.N = N
+        num = model.scene.numerics
+        roundoff = 64.0 * np.finfo(float).eps * float(np.max(net.EA * np.abs(net.nodes).max() / net.edge_rest_length))
+        self.tol = tol if tol is not None else max(num.force_tol * model.force_scale, roundoff)
+        self.max_iterations = max_iterations
+        self.scale = model.scale
+        # which part each node and edge turns with: the head body (x0 -> x1) at -omega_h, all else at omega_t
+        self.head_node = np.zeros(N, bool)
+        self.head_edge = np.zeros(net.n_edges, bool)
+        if len(net.head_nodes):
+            self.head_node[net.head_nodes[:2]] = True
+            self.head_edge[net.head_edge] = True
+        self.fixed = model.prescribed_dofs
+        if not self.clamped:
+            # gauge: the head centre's x and the first plate rim node's z
+            rim = net.edges[net.plate_edges[0], 1]
+            self.gauge = np.array([3 * net.head_nodes[1], 3 * rim + 2])
+        else:
+            self.gauge = np.zeros(0, np.int64)
+        e = net.edges
+        self._tail, self._head = e[:, 0], e[:, 1]
+
+    # ---------------------------------------------------------------- the rigid-motion velocity field
+    def _rates(self, omega_T: float, omega_t: float):
+        """Turning rate about +x of the frame each node is seen in, and of every edge's material frame.
+
+        Every node is described in the frame turning with the flagella (omega_t), the head's too: the head is
+        axisymmetric (isotropic drag, a torque about its own axis), so its spin shows only in its twist rate,
+        omega_t - omega_T. At the equilibrium the head nodes are on the axis, where the two descriptions agree;
+        off it (perturbations) one common frame keeps the linearised dynamics autonomous, so a rigid sideways
+        shift or tilt of the whole robot is the neutral mode it physically is."""
+        Om_n = np.full(self.N, omega_t)
+        Om_e = np.where(self.head_edge, omega_t - omega_T, omega_t)
+        return Om_n, Om_e
+
+    def fields(self, q, frames_t, omega_T, omega_t, U):
+        """(v, a, dv/domega_t, da/domega_t, dv/dU) as DOF vectors."""
+        N = self.N
+        x = q[: 3 * N].reshape(N, 3)
+        Om_n, Om_e = self._rates(omega_T, omega_t)
+        ex_cross_x = np.stack([np.zeros(N), -x[:, 2], x[:, 1]], axis=1)     # e_x x x
+        perp = np.stack([np.zeros(N), x[:, 1], x[:, 2]], axis=1)            # (0, y, z)
+        tx = frames_t[:, 0]                                                # e_x . t of every edge
+        v = np.concatenate([(Om_n[:, None] * ex_cross_x).ravel() + np.tile([U, 0.0, 0.0], N), Om_e * tx])
+        a = np.concatenate([(-(Om_n ** 2)[:, None] * perp).ravel(), np.zeros(len(tx))])
+        dv_dw = np.concatenate([ex_cross_x.ravel(), tx])
+        da_dw = np.concatenate([(-2.0 * Om_n[:, None] * perp).ravel(), np.zeros(len(tx))])
+        dv_dU = np.concatenate([np.tile([1.0, 0.0, 0.0], N), np.zeros(len(tx))])
+        return v, a, dv_dw, da_dw, dv_dU
+
+    def _velocity_jacobians(self, q, fr, omega_T, omega_t):
+        """Dv = dv/dq and Da = da/dq of the rigid-motion field (sparse, ndof x ndof)."""
+        N, net = self.N, self.net
+        Om_n, Om_e = self._rates(omega_T, omega_t)
+        rows, cols, vals = [], [], []
+        # nodes: dv/dx = Omega [e_x]x  (v_y = -Omega z, v_z = Omega y);  da/dx = -Omega^2 diag(0, 1, 1)
+        k = np.arange(N)
+        rows += [3 * k + 1, 3 * k + 2]
+        cols += [3 * k + 2, 3 * k + 1]
+        vals += [-Om_n, Om_n]
+        # twist rates Omega_e e_x.t_e: d(e_x.t)/dx_head = (e_x - (t.e_x) t) / l, the opposite for the tail
+        t, le = fr.t, fr.length
+        g = (np.eye(3)[0][None, :] - t[:, 0:1] * t) / le[:, None] * Om_e[:, None]      # (Ne, 3)
+        erow = 3 * N + np.arange(net.n_edges)
+        for sign, nodes in ((1.0, self._head), (-1.0, self._tail)):
+            for i in range(3):
+                rows.append(erow)
+                cols.append(3 * nodes + i)
+                vals.append(sign * g[:, i])
+        ndof = self.model.ndof
+        Dv = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(ndof, ndof))
+        Da = sp.csc_matrix((np.concatenate([-(Om_n ** 2), -(Om_n ** 2)]),
+                            (np.concatenate([3 * k + 1, 3 * k + 2]), np.concatenate([3 * k + 1, 3 * k + 2]))),
+                           shape=(ndof, ndof))
+        return Dv, Da
+
+    # ---------------------------------------------------------------- residual and Jacobian
+    def _context(self, q, fr, v, a, dv, da) -> StepContext:
+        N = self.N
+        return StepContext(q=q, x=q[: 3 * N].reshape(N, 3), v=v, a=a, dv_dq=dv, da_dq=da, t=0.0, h=1.0,
+                           drive_angle=0.0, frames=fr)
+
+    def residual(self, q, committed: EdgeFrames, omega_T, omega_t, U):
+        fr = self.model.elastic.trial_frames(q, committed)
+        v, a, *_ = self.fields(q, fr.t, omega_T, omega_t, U)
+        r = self.model.residual(self._context(q, fr, v, a, 0.0, 0.0))
+        r[self.fixed] = 0.0
+        return r, fr, v
+
+    def system(self, q, committed: EdgeFrames, omega_T, omega_t, U):
+        """Residual and Jacobian of the bordered system in the unknowns (q, omega_t, U) (free robot) or q."""
+        model = self.model
+        fr = model.elastic.trial_frames(q, committed)
+        v, a, dv_dw, da_dw, dv_dU = self.fields(q, fr.t, omega_T, omega_t, U)
+        ctx = self._context(q, fr, v, a, 0.0, 0.0)
+        r, J00 = model.residual_and_jacobian(ctx)
+        ctx.dv_dq, ctx.da_dq = 1.0, 0.0
+        Kv = model.pattern.matrix(model.jacobian(ctx) - J00)          # dR/dv
+        ctx.dv_dq, ctx.da_dq = 0.0, 1.0
+        Ka = model.pattern.matrix(model.jacobian(ctx) - J00)          # dR/da
+        Dv, Da = self._velocity_jacobians(q, fr, omega_T, omega_t)
+        J = (model.pattern.matrix(J00) + Kv @ Dv + Ka @ Da).tolil()
+        fixed = self.fixed
+        if len(fixed):
+            J[fixed, :] = 0.0
+            J[fixed, fixed] = 1.0
+            r[fixed] = 0.0
+        J = J.tocsc()
+        if self.clamped:
+            return r, J, fr
+        col_w = Kv @ dv_dw + Ka @ da_dw
+        col_U = Kv @ dv_dU
+        col_w[fixed] = 0.0
+        col_U[fixed] = 0.0
+        G = sp.csc_matrix((np.ones(len(self.gauge)), (np.arange(len(self.gauge)), self.gauge)),
+                          shape=(len(self.gauge), model.ndof))
+        A = sp.bmat([[J, sp.csc_matrix(np.column_stack([col_w, col_U]))], [G, None]], format="csc")
+        return r, A, fr
+
+    # ---------------------------------------------------------------- Newton
+    def _norm(self, r: np.ndarray) -> float:
+        return float(np.max(np.abs(r * self.scale))) if len(r) else 0.0
+
+    def _step_norm(self, dz: np.ndarray, omega_T: float) -> float:
+        """Size of a Newton correction: positions over the edge length, angles in radians, omega_t against
+        omega_T, U against the speed of a point turning at omega_T one edge length from the axis."""
+        ndof, ell = self.model.ndof, self.model.length_scale
+        w = np.empty(len(dz))
+        w[: 3 * self.N] = 1.0 / ell
+        w[3 * self.N: ndof] = 1.0
+        if len(dz) > ndof:
+            ref = max(abs(omega_T), 1e-12)
+            w[ndof] = 1.0 / ref
+            w[ndof + 1] = 1.0 / (ref * ell)
+        return float(np.sqrt(np.mean((dz * w) ** 2)))
+
+    def newton(self, q, committed, omega_T, omega_t, U, q_gauge):
+        """Damped Newton (Deuflhard's natural monotonicity test); returns (q, omega_t, U, residual, iterations,
+        frames) or raises SteadyFailed.
+
+        The test compares the simplified correction J^-1 r(trial), with the Jacobian already factorised, to the
+        Newton correction itself: unlike the residual's norm it is not dominated by the stiff stretching terms,
+        which a full step along a turning flagellum raises by orders of magnitude for one iteration although the
+        next removes them (pure Newton then converges quadratically)."""
+        ndof = self.model.ndof
+        r, fr, _ = self.residual(q, committed, omega_T, omega_t, U)
+        rn = self._norm(r)
+        lam = 1.0
+        for it in range(self.max_iterations + 1):
+            g = q[self.gauge] - q_gauge
+            rn = self._norm(r)
+            if not math.isfinite(rn):
+                raise SteadyFailed(f"non-finite residual at omega_T = {omega_T:.6g} rad/s")
+            if rn <= self.tol and np.all(np.abs(g) < 1e-12):
+                return q, omega_t, U, rn, it, fr
+            if it == self.max_iterations:
+                break
+            _, A, _ = self.system(q, committed, omega_T, omega_t, U)
+            try:
+                lu = spla.splu(A, permc_spec="COLAMD")
+            except RuntimeError as exc:
+                raise SteadyFailed(f"singular Jacobian at omega_T = {omega_T:.6g} rad/s: {exc}") from None
+            rhs = r if self.clamped else np.concatenate([r, g])
+            dz = -lu.solve(rhs)
+            if not np.all(np.isfinite(dz)):
+                raise SteadyFailed(f"non-finite Newton step at omega_T = {omega_T:.6g} rad/s")
+            dn = self._step_norm(dz, omega_T)
+            lam = min(1.0, 2.0 * lam)
+            while True:
+                q_try = q + lam * dz[:ndof]
+                w_try = omega_t + (lam * dz[ndof] if not self.clamped else 0.0)
+                U_try = U + (lam * dz[ndof + 1] if not self.clamped else 0.0)
+                r_try, fr_try, _ = self.residual(q_try, committed, omega_T, w_try, U_try)
+                ok = np.all(np.isfinite(r_try))
+                if ok:
+                    rhs_try = r_try if self.clamped else np.concatenate([r_try, q_try[self.gauge] - q_gauge])
+                    dn_try = self._step_norm(lu.solve(rhs_try), omega_T)
+                    if dn_try <= (1.0 - 0.5 * lam) * dn or dn <= 1e-14:
+                        break
+                lam *= 0.5
+                if lam < 1.0 / 1024.0:
+                    raise SteadyFailed(f"the damped Newton iteration stalled at omega_T = {omega_T:.6g} rad/s "
+                                       f"(residual {rn:.3g} N, tolerance {self.tol:.3g} N)")
+            q, omega_t, U, r, fr = q_try, w_try, U_try, r_try, fr_try
+        raise SteadyFailed(f"Newton did not converge in {self.max_iterations} iterations at omega_T = "
+                           f"{omega_T:.6g} rad/s (residual {self._norm(r):.3g} N, tolerance {self.tol:.3g} N)")
+
+    def initial_guess(self, omega_T: float):
+        """The straight robot turning as a rigid body, with the torque balance of straight flagella:
+        omega_h c_h = n eta_p L R_d^2 omega_t, omega_h + omega_t = omega_T."""
+        sc = self.model.scene
+        q = self.net.initial_q()
+        if self.clamped:
+            return q, omega_T, 0.0
+        c_h = sc.head_torque_coefficient if "head_torque" in sc.effects else 0.0
+        c_t = sc.robot.n_flagella * sc.eta_p * sc.flagellum.length * sc.R_d ** 2 if "rft" in sc.effects else 0.0
+        omega_t = omega_T * c_h / (c_h + c_t) if c_h + c_t > 0 else 0.5 * omega_T
+        return q, omega_t, 0.0
+
+    def solve(self, omega_T: float, start: SteadySolution | None = None, min_fraction: float = 1e-3
+              ) -> SteadySolution:
+        """The relative equilibrium at omega_T (rad/s), continued from ``start`` (default: the straight robot at
+        rest). Newton first tries the whole way; where it fails, the step in omega_T is halved (continuation),
+        and steps grow again by doubling. Raises SteadyFailed with the reason when no equilibrium is found."""
+        t0 = time.perf_counter()
+        target = float(omega_T)
+        if start is None:
+            q, omega_t, U = self.initial_guess(target)
+            ratio = omega_t / target if target else 0.0          # omega_t / omega_T of the guess
+            committed = self.model.elastic.frames0.copy()
+            w_done = 0.0
+            q_gauge = self.net.initial_q()[self.gauge]
+        else:
+            q, omega_t, U, committed, w_done = start.q.copy(), start.omega_t, -start.v, start.frames.copy(), \
+                start.omega_T
+            ratio = omega_t / w_done if w_done else 0.5
+            q_gauge = start.q[self.gauge]
+        if self.clamped:
+            self._set_clamp(q, committed)
+        path, iterations, rn = [], 0, 0.0
+        w = target
+        while True:
+            guess_w = omega_t * w / w_done if w_done else ratio * w
+            try:
+                q1, omega_t1, U1, rn, its, fr = self.newton(q.copy(), committed, w, guess_w if not self.clamped
+                                                            else w, U, q_gauge)
+            except SteadyFailed as exc:
+                step = w - w_done
+                if abs(step) <= min_fraction * max(abs(target), 1e-12):
+                    raise SteadyFailed(f"no relative equilibrium found beyond omega_T = {w_done:.6g} rad/s "
+                                       f"(target {target:.6g} rad/s): {exc}") from None
+                w = w_done + 0.5 * step
+                continue
+            iterations += its
+            step = w - w_done
+            path.append(w)
+            # carry the shape forward, and its frames with it (small transports for the next solve)
+            q, omega_t, U, committed, w_done = q1, omega_t1, U1, EdgeFrames.of(fr), w
+            if w == target:
+                break
+            w = w_done + 2.0 * step
+            if (w - target) * step > 0:
+                w = target
+        v_dofs = self.fields(q, committed.t, target, omega_t, U)[0]
+        return SteadySolution(omega_T=target, omega_t=omega_t, omega_h=target - omega_t, v=-U, q=q, velocity=v_dofs,
+                              frames=committed, residual=rn, iterations=iterations, continuation=path,
+                              wall_seconds=time.perf_counter() - t0)
+
+    def stability(self, sol: SteadySolution, k: int = 6) -> Stability:
+        """Growth rates of small perturbations of the equilibrium, in the frame that follows its rigid motion.
+
+        Inertia is negligible at this Reynolds number (rho A omega / eta_p ~ 1e-5), so perturbations obey the
+        overdamped linearisation  A dz + M d(dz)/dt = 0, where A is the bordered steady Jacobian (the gauge fixes
+        translation and rotation; omega_t and U adjust instantly, as force and torque balance demand) and M is
+        dR/dv on the DOFs (the medium's damping). The slowest modes, mu closest to 0, are the largest
+        eigenvalues nu = 1/mu of -A^-1 M, found by ARPACK with A factorised once. Stable when every mu found has
+        a negative real part."""
+        model = self.model
+        q, fr = sol.q, sol.frames
+        omega_t, U = sol.omega_t, -sol.v
+        _, A, _ = self.system(q, fr, sol.omega_T, omega_t, U)
+        v, a, *_ = self.fields(q, fr.t, sol.omega_T, omega_t, U)
+        ctx = self._context(q, model.elastic.trial_frames(q, fr), v, a, 0.0, 0.0)
+        J00 = model.jacobian(ctx)
+        ctx.dv_dq = 1.0
+        Kv = model.pattern.matrix(model.jacobian(ctx) - J00).tolil()
+        if len(self.fixed):
+            Kv[self.fixed, :] = 0.0
+        n = A.shape[0]
+        M = sp.bmat([[Kv.tocsc(), None], [None, sp.csc_matrix((n - model.ndof, n - model.ndof))]], format="csc") \
+            if n > model.ndof else Kv.tocsc()
+        lu = spla.splu(A, permc_spec="COLAMD")
+        op = spla.LinearOperator((n, n), matvec=lambda z: -lu.solve(M @ z), dtype=float)
+        k = min(k, n - 2)
+        nu = spla.eigs(op, k=k, which="LM", return_eigenvectors=False, tol=1e-8, maxiter=5000)
+        nu = nu[np.abs(nu) > 1e-300]
+        mu = 1.0 / nu
+        mu = mu[np.argsort(-mu.real)]
+        rate = float(mu[0].real)
+        return Stability(stable=rate < 0.0, rate=rate, rates=[complex(m) for m in mu])
+
+    def _set_clamp(self, q, committed):
+        """Put the clamped DOFs at the clamp's configuration at drive angle 0."""
+        state = State(0.0, q, np.zeros_like(q), committed, 0.0)
+        self.model.prescribe(q, state, 0.0)
+
+
+def medium_force(model: RobotModel, sol: SteadySolution) -> tuple[np.ndarray, np.ndarray]:
+    """Total RFT force (N) and torque about the origin (N m) on the flagella at the equilibrium."""
+    rft = model.effect("rft")
+    if rft is None:
+        return np.zeros(3), np.zeros(3)
+    N = model.net.n_nodes
+    x = sol.q[: 3 * N].reshape(N, 3)
+    F = rft.node_forces(x, sol.velocity)
+    return F.sum(axis=0), np.cross(x[rft.k], F).sum(axis=0)
+
+
+def motor_torque(model: RobotModel, sol: SteadySolution) -> float:
+    """The motor hinge's twisting moment at the equilibrium (N m), as Simulation.motor_torque."""
+    net, el = model.net, model.elastic
+    h = net.motor_hinge
+    if h < 0:
+        return 0.0
+    _, _, tau = el.hinge_strains(sol.q, el.trial_frames(sol.q, sol.frames))
+    return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h]))
+
+
+def summary(model: RobotModel, sol: SteadySolution) -> dict:
+    """The fields of ``flagbot run --json`` for the equilibrium, plus its residual and Newton iterations."""
+    sc = model.scene
+    out = {"scene": sc.scene.name, "n_flagella": sc.robot.n_flagella, "omega_T": sol.omega_T,
+           "omega_h": sol.omega_h if not sc.clamped else 0.0, "omega_t": sol.omega_t, "v": sol.v, "steady": True,
+           "method": "steady", "residual": sol.residual, "newton_iterations": sol.iterations,
+           "continuation": list(sol.continuation), "wall_seconds": sol.wall_seconds}
+    if sc.clamped:
+        F, T = medium_force(model, sol)
+        N = model.net.n_nodes
+        tip = sol.q[: 3 * N].reshape(N, 3)[model.net.flagella_nodes[0][-1]]
+        out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in tip])
+    else:
+        out["motor_torque"] = motor_torque(model, sol)
+    return out
