@@ -46,11 +46,12 @@ class SteadyFailed(RuntimeError):
 class Stability:
     """Linear stability of an equilibrium in the overdamped limit (see :meth:`SteadySolver.stability`)."""
     stable: bool
-    rate: float                  # 1/s: the largest real part of the perturbations' growth rates (< 0: decay)
-    rates: list                  # the slowest few growth rates found (1/s), largest real part first
+    rate: float                  # 1/s: largest real part of the growth rates of the non-neutral modes (< 0: decay)
+    rates: list                  # the slowest growth rates found (1/s), largest real part first
+    neutral: int                 # modes with zero growth: a rigid sideways shift of the whole robot
 
     def to_dict(self) -> dict:
-        return {"stable": self.stable, "slowest_rate": self.rate,
+        return {"stable": self.stable, "slowest_rate": self.rate, "neutral_modes": self.neutral,
                 "slowest_time_constant": (-1.0 / self.rate) if self.rate < 0 else None}
 
 
@@ -167,8 +168,11 @@ class SteadySolver:
         r[self.fixed] = 0.0
         return r, fr, v
 
-    def system(self, q, committed: EdgeFrames, omega_T, omega_t, U):
-        """Residual and Jacobian of the bordered system in the unknowns (q, omega_t, U) (free robot) or q."""
+    def system(self, q, committed: EdgeFrames, omega_T, omega_t, U, inertia: bool = True):
+        """Residual and Jacobian of the bordered system in the unknowns (q, omega_t, U) (free robot) or q.
+
+        ``inertia=False`` leaves out the centripetal load's derivatives (for the overdamped stability analysis,
+        which must then leave out the Coriolis and relative accelerations too)."""
         model = self.model
         fr = model.elastic.trial_frames(q, committed)
         v, a, dv_dw, da_dw, dv_dU = self.fields(q, fr.t, omega_T, omega_t, U)
@@ -179,6 +183,8 @@ class SteadySolver:
         ctx.dv_dq, ctx.da_dq = 0.0, 1.0
         Ka = model.pattern.matrix(model.jacobian(ctx) - J00)          # dR/da
         Dv, Da = self._velocity_jacobians(q, fr, omega_T, omega_t)
+        if not inertia:
+            Ka = Ka * 0.0
         J = (model.pattern.matrix(J00) + Kv @ Dv + Ka @ Da).tolil()
         fixed = self.fixed
         if len(fixed):
@@ -330,7 +336,9 @@ class SteadySolver:
         """Growth rates of small perturbations of the equilibrium, in the frame that follows its rigid motion.
 
         Inertia is negligible at this Reynolds number (rho A omega / eta_p ~ 1e-5), so perturbations obey the
-        overdamped linearisation  A dz + M d(dz)/dt = 0, where A is the bordered steady Jacobian (the gauge fixes
+        overdamped linearisation  A dz + M d(dz)/dt = 0 (inertia left out entirely: its centripetal part alone,
+        without the Coriolis and relative accelerations, would make the neutral sideways shift of a heavy head
+        look unstable), where A is the bordered steady Jacobian (the gauge fixes
         translation and rotation; omega_t and U adjust instantly, as force and torque balance demand) and M is
         dR/dv on the DOFs (the medium's damping). The slowest modes, mu closest to 0, are the largest
         eigenvalues nu = 1/mu of -A^-1 M, found by ARPACK with A factorised once. Stable when every mu found has
@@ -338,7 +346,7 @@ class SteadySolver:
         model = self.model
         q, fr = sol.q, sol.frames
         omega_t, U = sol.omega_t, -sol.v
-        _, A, _ = self.system(q, fr, sol.omega_T, omega_t, U)
+        _, A, _ = self.system(q, fr, sol.omega_T, omega_t, U, inertia=False)
         v, a, *_ = self.fields(q, fr.t, sol.omega_T, omega_t, U)
         ctx = self._context(q, model.elastic.trial_frames(q, fr), v, a, 0.0, 0.0)
         J00 = model.jacobian(ctx)
@@ -352,12 +360,16 @@ class SteadySolver:
         lu = spla.splu(A, permc_spec="COLAMD")
         op = spla.LinearOperator((n, n), matvec=lambda z: -lu.solve(M @ z), dtype=float)
         k = min(k, n - 2)
-        nu = spla.eigs(op, k=k, which="LM", return_eigenvectors=False, tol=1e-8, maxiter=5000)
+        nu = spla.eigs(op, k=k, which="LM", return_eigenvectors=False, tol=1e-10, maxiter=5000)
         nu = nu[np.abs(nu) > 1e-300]
         mu = 1.0 / nu
         mu = mu[np.argsort(-mu.real)]
-        rate = float(mu[0].real)
-        return Stability(stable=rate < 0.0, rate=rate, rates=[complex(m) for m in mu])
+        # a sideways shift of the whole robot is neutral (it turns about its own axis wherever it is): zero real
+        # part to round-off, seen in the turning frame as an oscillation at omega_t
+        neutral = np.abs(mu.real) <= 1e-7 * max(1.0, abs(sol.omega_T))
+        rest = mu[~neutral]
+        rate = float(rest[0].real) if len(rest) else 0.0
+        return Stability(stable=rate < 0.0, rate=rate, rates=[complex(m) for m in mu], neutral=int(neutral.sum()))
 
     def _set_clamp(self, q, committed):
         """Put the clamped DOFs at the clamp's configuration at drive angle 0."""
