@@ -49,7 +49,7 @@ def test_overrides_and_units():
     ("flagellum.lenght=0.1", ["flagellum.lenght", "length", "radius"]),
     ("robot.n_flagella=0", ["robot.n_flagella", ">= 1"]),
     ("robot.n_flagella=2.5", ["robot.n_flagella", "integer"]),
-    ("flagellum.length=-0.1", ["flagellum.length", "> 0"]),
+    ("flagellum.length=-0.1", ["flagellum.length", ">= 1e-06 m and <= 1000 m"]),
     ("flagellum.radius=0.2", ["flagellum.radius", "flagellum.length"]),
     ("flagellum.edge_length=1.0", ["flagellum.edge_length", "flagellum.length"]),
     ("medium.mu='thick'", ["medium.mu", "number"]),
