@@ -1,5 +1,6 @@
 """The command line, run as users run it: a separate process."""
 import json
+import re
 import time
 
 import pytest
@@ -159,3 +160,13 @@ def test_summary_shows_missing_values_as_dashes_never_nan():
     clamped = {**out, "scene": "clamped_flagellum", "Fx": None, "Tx": float("inf"), "tip": [0.1, None, 0.0]}
     text = format_summary(load_scene("clamped_flagellum"), clamped)
     assert "inf" not in text and "nan" not in text and "Fx  (axial force on the flagellum)  = -- N" in text
+
+
+def test_bench_startup_times_whole_processes():
+    p = flagbot("bench", "startup", "--no-cold", "--repeat", "1", "--scene", "design2")
+    assert p.returncode == 0, p.stderr
+    rows = {ln.split("  ")[1].strip(): ln for ln in p.stdout.splitlines() if ln.startswith("  ") and "/" in ln}
+    warm = rows["warm: --duration 0.1 (kernel cache filled)"]
+    lo, med, hi = (float(x) for x in re.findall(r"\d+\.\d+", warm)[-3:])
+    assert 0.0 < lo <= med <= hi < 120.0
+    assert "python -c pass" in rows and "load average" in p.stdout

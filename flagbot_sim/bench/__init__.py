@@ -1,4 +1,5 @@
-"""Benchmarks: `flagbot bench accuracy` (accuracy vs time study) and `flagbot bench speed` (throughput).
+"""Benchmarks: `flagbot bench accuracy` (accuracy vs time study), `flagbot bench speed` (throughput) and
+`flagbot bench startup` (start-up time of `flagbot run`, cold and warm, as whole processes).
 
 Registration imports nothing heavy: the simulator is loaded only when a benchmark actually runs.
 """
@@ -22,6 +23,13 @@ def speed_arguments(ap) -> None:
     ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
 
 
+def startup_arguments(ap) -> None:
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs of each kind (min / median / max reported)")
+    ap.add_argument("--scene", default="design1", help="scene to run (default design1)")
+    ap.add_argument("--no-cold", action="store_true", help="skip the cold runs (each compiles every kernel)")
+    ap.add_argument("--breakdown", action="store_true", help="also time the phases of a warm start in one process")
+
+
 def _run(module: str):
     def run(args):
         import importlib
@@ -30,7 +38,7 @@ def _run(module: str):
 
 
 def register(sub) -> None:
-    p = sub.add_parser("bench", help="benchmarks: accuracy vs time, throughput")
+    p = sub.add_parser("bench", help="benchmarks: accuracy vs time, throughput, start-up time")
     bsub = p.add_subparsers(dest="bench", required=True)
     a = bsub.add_parser("accuracy", help="error of the steady outputs vs wall time over a grid of dt x edge length")
     accuracy_arguments(a)
@@ -38,3 +46,7 @@ def register(sub) -> None:
     s = bsub.add_parser("speed", help="steps/s, real-time factor, per-phase breakdown, cost vs DOF, PyElastica")
     speed_arguments(s)
     s.set_defaults(func=_run("speed"))
+    t = bsub.add_parser("startup", help="wall time of `flagbot run` as whole processes: cold (empty kernel cache) "
+                                        "and warm, min / median / max")
+    startup_arguments(t)
+    t.set_defaults(func=_run("startup"))
