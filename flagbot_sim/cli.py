@@ -18,7 +18,7 @@ import sys
 import time
 
 from .cliutil import add_scene_arguments, dumps
-from .scene import RPM, SceneError, load_scene
+from .scene import RPM, SceneError, TimeSection, load_scene
 
 #: when this module was imported: the fallback origin of ``startup_seconds`` where /proc is not available
 _IMPORTED = time.perf_counter()
@@ -74,8 +74,9 @@ def cmd_run(args) -> int:
     from .progress import ProgressBar
 
     duration = args.duration if args.duration is not None else scene.time.duration
-    if not (duration > 0 and math.isfinite(duration)):
-        raise SceneError(f"--duration must be a positive number of seconds, got {duration!r}")
+    longest = TimeSection.__dataclass_fields__["duration"].metadata["le"]
+    if not (0 < duration <= longest):
+        raise SceneError(f"--duration must be a positive number of seconds up to {longest:g}, got {duration!r}")
     sim = Simulation(scene)
     startup = process_age()
     bar = ProgressBar(duration, label=scene.scene.name, enabled=not args.json and not args.quiet)

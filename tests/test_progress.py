@@ -116,3 +116,10 @@ def test_disabled_writes_nothing():
     bar.update(0.5, "x")
     bar.close()
     assert term.getvalue() == ""
+
+
+def test_the_sweep_progress_line_shows_a_failed_point_without_nan():
+    from flagbot_sim.sweep.cli import _progress_text
+    text = _progress_text({"rows": [{"framework": "der", "error": "no steady state", "hit_cap": False, "n": 2,
+                                     "L": 0.111, "omega_T_rpm": 100.0, "v": float("nan"), "wall_seconds": None}]})
+    assert "nan" not in text and "v=--mm/s ERROR" in text and "L=111mm" in text
