@@ -42,6 +42,10 @@ sim.summary();                                     mark("summary")
 again = flagbot_sim.physics.Simulation(scene);     mark("a second Simulation() (kernels in memory)")
 again.run(0.1);                                    mark("10 more steps (kernels in memory)")
 print(json.dumps({"age": age, "marks": marks}))
+if sys.argv[2] == "fast":
+    from flagbot_sim.cli import _fast_exit
+    _fast_exit()                                   # as flagbot run ends
+print(time.monotonic(), file=sys.stderr)
 """
 
 
@@ -116,14 +120,25 @@ def run(args) -> int:
     return 0
 
 
-def print_breakdown(scene: str) -> None:
+def _breakdown_process(scene: str, exit_mode: str) -> tuple[dict, float]:
+    """(the phases, the seconds from the end of the work to the process's end) of one warm start."""
     import json
-    p = subprocess.run([sys.executable, "-c", BREAKDOWN_CODE, scene], env=_env(), capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-c", BREAKDOWN_CODE, scene, exit_mode], env=_env(), capture_output=True,
+                       text=True)
+    ended = time.monotonic()
     if p.returncode != 0:
         raise RuntimeError(f"breakdown failed: {p.stderr.strip()[-500:]}")
-    data = json.loads(p.stdout.strip().splitlines()[-1])
-    rows = [("interpreter start, site, the ROS wheels' re-exec", data["age"]), *data["marks"].items()]
+    return json.loads(p.stdout.strip().splitlines()[-1]), ended - float(p.stderr.strip().splitlines()[-1])
+
+
+def print_breakdown(scene: str) -> None:
+    data, fast = _breakdown_process(scene, "fast")
+    _, slow = _breakdown_process(scene, "plain")
+    rows = [("interpreter start, site, the ROS wheels' re-exec", data["age"]), *data["marks"].items(),
+            ("interpreter shutdown (gc.freeze first, as flagbot run does)", fast),
+            ("interpreter shutdown without gc.freeze, for comparison", slow)]
     width = max(len(k) for k, _ in rows)
-    print(f"warm start of {scene}, one process (seconds; the last two lines are for comparison, not part of a run):")
+    print(f"warm start of {scene}, one process, seconds (the two 'kernels in memory' lines and the last one are "
+          "for comparison, not part of a run):")
     for k, v in rows:
         print(f"  {k:{width}s}  {v:6.3f}")
