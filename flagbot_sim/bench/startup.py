@@ -55,6 +55,11 @@ def flagbot_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "flagbot_sim"]
 
 
+#: the children run from a neutral directory: with `python -c` / `-m` the working directory comes first on
+#: sys.path, and a checkout there would be imported instead of the installed package
+NEUTRAL_CWD = tempfile.gettempdir()
+
+
 def _env(**extra) -> dict:
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -67,7 +72,7 @@ def _env(**extra) -> dict:
 
 def time_process(cmd: list[str], env: dict) -> float:
     t0 = time.perf_counter()
-    p = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    p = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=NEUTRAL_CWD)
     wall = time.perf_counter() - t0
     if p.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed (exit {p.returncode}): {p.stderr.strip()[-500:]}")
@@ -90,8 +95,9 @@ def run(args) -> int:
     if args.repeat < 1:
         raise SceneError(f"--repeat must be at least 1, got {args.repeat}")
     load_scene(args.scene)                          # a bad scene is refused before anything is timed
+    scene = str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene   # children: NEUTRAL_CWD
     flagbot = flagbot_command()
-    run_cmd = [*flagbot, "run", args.scene, "--quiet"]
+    run_cmd = [*flagbot, "run", scene, "--quiet"]
     print(f"start-up of `{' '.join([Path(flagbot[0]).name, *flagbot[1:], 'run', args.scene])}` as whole processes, "
           f"wall seconds, min / median / max of {args.repeat}; {os.cpu_count()} cores, {load()}")
     rows = []
@@ -116,7 +122,7 @@ def run(args) -> int:
         print(f"  {label:{width}s}  {stats(values)}")
     print(f"  ({load()} after)")
     if args.breakdown:
-        print_breakdown(args.scene)
+        print_breakdown(scene)
     return 0
 
 
@@ -124,7 +130,7 @@ def _breakdown_process(scene: str, exit_mode: str) -> tuple[dict, float]:
     """(the phases, the seconds from the end of the work to the process's end) of one warm start."""
     import json
     p = subprocess.run([sys.executable, "-c", BREAKDOWN_CODE, scene, exit_mode], env=_env(), capture_output=True,
-                       text=True)
+                       text=True, cwd=NEUTRAL_CWD)
     ended = time.monotonic()
     if p.returncode != 0:
         raise RuntimeError(f"breakdown failed: {p.stderr.strip()[-500:]}")
