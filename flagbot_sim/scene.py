@@ -47,6 +47,8 @@ MAX_FILE_BYTES = 1 << 20
 #: MIN_LENGTH_RATIO of its overall size (below that an edge vanishes in the rounding of the node positions, and
 #: the reference frames divide by a zero length)
 MIN_LENGTH, MAX_LENGTH, MIN_LENGTH_RATIO = 1.0e-6, 1.0e3, 1.0e-5
+#: largest rotation of the clamp in one time step (rad): a quarter turn
+MAX_CLAMP_TURN = 0.5 * math.pi
 
 _REPR = reprlib.Repr()
 _REPR.maxlist = _REPR.maxtuple = 6
@@ -519,6 +521,14 @@ def _check_consistency(sc: Scene) -> None:
         if sc.robot.n_flagella != 1:
             raise SceneError(f"robot.n_flagella = {sc.robot.n_flagella}: the 'clamp' scene drives exactly one "
                              "flagellum; set robot.n_flagella = 1")
+        # the clamp turns the plate arm by omega*dt per step, imposed: at half a turn the arm's tangent reverses
+        # and its frame transport is singular, at a whole turn the motion aliases to none
+        if abs(sc.omega_T) * sc.time.dt > MAX_CLAMP_TURN:
+            limit = MAX_CLAMP_TURN / sc.time.dt / RPM
+            raise SceneError(f"motor.omega_rpm = {sc.motor.omega_rpm:g} rpm turns the clamp by "
+                             f"{math.degrees(abs(sc.omega_T) * sc.time.dt):.0f} deg per step of time.dt = "
+                             f"{sc.time.dt:g} s; at most {math.degrees(MAX_CLAMP_TURN):.0f} deg: |omega_rpm| <= "
+                             f"{limit:.0f} rpm at this dt, or a smaller time.dt")
 
 
 def _check_proportions(sc: Scene) -> None:

@@ -34,7 +34,7 @@ DEEP = 2000                                                   # nesting depth of
 #: where scalars belong, inline tables, very long strings, a huge array and a deeply nested one
 VALUES: dict[str, str] = {
     "nan": "nan", "inf": "inf", "-inf": "-inf", "zero": "0", "zero-float": "0.0", "minus-one": "-1",
-    "1e30": "1e30", "-1e30": "-1e30", "1e-30": "1e-30", "1e308": "1.7e308", "int64-max": "9223372036854775807",
+    "3000": "3000.0", "1e30": "1e30", "-1e30": "-1e30", "1e-30": "1e-30", "1e308": "1.7e308", "int64-max": "9223372036854775807",
     "int64-min": "-9223372036854775808", "true": "true", "string": '"fast"', "empty-string": '""',
     "list-1": "[1]", "list-list-1": "[[1]]", "list-str": '["default"]', "empty-list": "[]",
     "table": "{ a = 1 }", "long-string": '"' + "x" * 200_000 + '"', "date": "1979-05-27T07:32:00Z",
