@@ -2,31 +2,83 @@
 
 Each command lives with the code it drives and registers itself here through a ``register(subparsers)``
 function; this module only assembles them and turns known errors into one-line messages.
+
+Start-up time matters (``flagbot run`` is often a short job), so the command modules are imported lazily: the
+parser imports only the module that provides the command being run. ``flagbot --help`` lists every command from
+:data:`COMMANDS` without importing any of them (scipy.optimize for the beam estimator, matplotlib, dask, rclpy);
+a test checks that the table names exactly the commands the modules register.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
 import math
+import os
 import sys
+import time
 
 from .cliutil import add_scene_arguments, dumps
-from .scene import RPM, SceneError, load_scene
+from .scene import RPM, SceneError, TimeSection, load_scene
 
-#: modules that contribute subcommands (each has register(subparsers)); missing ones are skipped
-COMMAND_MODULES = ["flagbot_sim.beam.cli", "flagbot_sim.ros.demo", "flagbot_sim.bench", "flagbot_sim.sweep",
-                   "flagbot_sim.bagtools"]
+#: when this module was imported: the fallback origin of ``startup_seconds`` where /proc is not available
+_IMPORTED = time.perf_counter()
+
+#: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "beam": ("flagbot_sim.beam.cli", "beam-theory estimate (LB / NLB w/o head / NLB) of omega_h, omega_t and "
+                                     "speed for motor speeds omega_T"),
+    "demo": ("flagbot_sim.ros.demo", "run sim_node + beam_node + a command profile and compare DER with beam "
+                                     "theory"),
+    "bench": ("flagbot_sim.bench", "benchmarks: accuracy vs time, throughput, start-up time"),
+    "sweep": ("flagbot_sim.sweep", "parameter sweep: DER to steady state and the beam balance at every grid "
+                                   "point, one tidy CSV, resumable, plus the paper's figures"),
+    "sweep-plot": ("flagbot_sim.sweep", "redraw a sweep's figures and summary from DIR/results.csv alone"),
+    "record": ("flagbot_sim.bagtools", "record flagbot topics to MCAP (rosbag2 layout) until Ctrl-C"),
+    "replay": ("flagbot_sim.bagtools", "replay an MCAP recording with its timing and /clock"),
+    "bag-summary": ("flagbot_sim.bagtools", "topics, counts, duration and the steady state of each omega_T step"),
+    "bag-recover": ("flagbot_sim.bagtools", "rewrite the readable part of a damaged MCAP file into a valid one"),
+}
+
+#: modules that contribute subcommands, in the order they are registered when all are wanted
+COMMAND_MODULES = list(dict.fromkeys(module for module, _ in COMMANDS.values()))
+
+#: longest error message printed (a refused 1e6-element array must not be echoed back)
+MAX_ERROR_CHARS = 600
+
+
+def process_age() -> float:
+    """Seconds since this process started (Linux: from /proc, so interpreter start-up and the ROS wheels'
+    re-exec of the interpreter are included; elsewhere: since this module was imported)."""
+    try:
+        with open("/proc/self/stat", "rb") as f:
+            # the command name (field 2) may hold spaces and parentheses: split after the last ')'
+            fields = f.read().rsplit(b")", 1)[1].split()
+        start_ticks = int(fields[19])                       # field 22, starttime, in clock ticks since boot
+        with open("/proc/uptime", "rb") as f:
+            uptime = float(f.read().split()[0])
+        return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return time.perf_counter() - _IMPORTED
+
+
+def _finite(value, spec: str, missing: str = "--") -> str:
+    """``value`` formatted with ``spec``, or ``missing`` when it is None or not finite (never 'nan')."""
+    if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return missing
+    return format(value, spec)
 
 
 def cmd_run(args) -> int:
+    scene = load_scene(args.scene, args.overrides)          # before the simulator's imports: a refusal is quick
     from .physics import Simulation, StepFailed
     from .progress import ProgressBar
 
-    scene = load_scene(args.scene, args.overrides)
     duration = args.duration if args.duration is not None else scene.time.duration
-    if not (duration > 0 and math.isfinite(duration)):
-        raise SceneError(f"--duration must be a positive number of seconds, got {duration!r}")
+    longest = TimeSection.__dataclass_fields__["duration"].metadata["le"]
+    if not (0 < duration <= longest):
+        raise SceneError(f"--duration must be a positive number of seconds up to {longest:g}, got {duration!r}")
     sim = Simulation(scene)
+    startup = process_age()
     bar = ProgressBar(duration, label=scene.scene.name, enabled=not args.json and not args.quiet)
     n_steps = max(1, int(round(duration / scene.time.dt)))     # as Simulation.run counts them
 
@@ -34,8 +86,8 @@ def cmd_run(args) -> int:
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
-            bar.update(s.time, f"newton {s.last_stats.newton_iterations}  w_h {ob.rate_h:+.3f}  "
-                               f"w_t {ob.rate_t:+.3f} rad/s  v {1e3 * ob.speed:+.3f} mm/s")
+            bar.update(s.time, f"newton {s.last_stats.newton_iterations}  w_h {_finite(ob.rate_h, '+.3f')}  "
+                               f"w_t {_finite(ob.rate_t, '+.3f')} rad/s  v {_finite(1e3 * ob.speed, '+.3f')} mm/s")
 
     error = None
     try:
@@ -46,6 +98,7 @@ def cmd_run(args) -> int:
         error = f"interrupted at t = {sim.time:.3f} s"
     bar.close()
     out = sim.summary()
+    out.setdefault("startup_seconds", startup)
     if error:
         out["error"] = error
     if args.json:
@@ -56,32 +109,79 @@ def cmd_run(args) -> int:
 
 
 def format_summary(scene, out: dict) -> str:
-    lines = [f"scene {out['scene']}  n = {out['n_flagella']}  omega_T = {out['omega_T']:.4f} rad/s "
-             f"({out['omega_T'] / RPM:.1f} rpm)  t = {out['time']:.3f} s"]
+    """The human-readable run summary. Values that are missing (None: no step taken, no steady window yet) or
+    not finite print as '--', never as 'nan'."""
+    def g(key, spec, scale=1.0):
+        v = out.get(key)
+        return _finite(None if v is None else scale * v, spec)
+
+    omega_T = out["omega_T"]
+    lines = [f"scene {out['scene']}  n = {out['n_flagella']}  omega_T = {g('omega_T', '.4f')} rad/s "
+             f"({g('omega_T', '.1f', 1 / RPM)} rpm)  t = {g('time', '.3f')} s"]
     if scene.clamped:
-        lines += [f"  Fx  (axial force on the flagellum)  = {out['Fx']:+.6e} N",
-                  f"  Tx  (torque about the axis)        = {out['Tx']:+.6e} N m",
-                  "  tip (co-rotating frame)            = [" + ", ".join(f"{v:+.6f}" for v in out["tip"]) + "] m"]
+        tip = out.get("tip") or []
+        lines += [f"  Fx  (axial force on the flagellum)  = {g('Fx', '+.6e')} N",
+                  f"  Tx  (torque about the axis)        = {g('Tx', '+.6e')} N m",
+                  "  tip (co-rotating frame)            = [" + ", ".join(_finite(v, "+.6f") for v in tip) + "] m"]
     else:
-        wt = out["omega_T"] if out["omega_T"] else float("nan")
-        lines += [f"  omega_h = {out['omega_h']:+.5f} rad/s ({out['omega_h'] / RPM:+.2f} rpm, "
-                  f"{100 * out['omega_h'] / wt:.1f}% of omega_T)",
-                  f"  omega_t = {out['omega_t']:+.5f} rad/s ({out['omega_t'] / RPM:+.2f} rpm)",
-                  f"  v       = {out['v']:+.6e} m/s ({1e3 * out['v']:+.4f} mm/s, positive = head first)",
-                  f"  normalised: omega_T_bar = {scene.normalise_omega(out['omega_T']):.2f}, "
-                  f"v_bar = {scene.normalise_speed(out['v']):.4f}"]
-    lines.append(f"  steady over the last {out['window']:.2f} s: {'yes' if out['steady'] else 'NO (run longer)'}")
+        omega_h, v = out.get("omega_h"), out.get("v")
+        share = 100 * omega_h / omega_T if omega_h is not None and omega_T else None
+        lines += [f"  omega_h = {g('omega_h', '+.5f')} rad/s ({g('omega_h', '+.2f', 1 / RPM)} rpm, "
+                  f"{_finite(share, '.1f')}% of omega_T)",
+                  f"  omega_t = {g('omega_t', '+.5f')} rad/s ({g('omega_t', '+.2f', 1 / RPM)} rpm)",
+                  f"  v       = {g('v', '+.6e')} m/s ({g('v', '+.4f', 1e3)} mm/s, positive = head first)",
+                  f"  normalised: omega_T_bar = {_finite(scene.normalise_omega(omega_T), '.2f')}, "
+                  f"v_bar = {_finite(None if v is None else scene.normalise_speed(v), '.4f')}"]
+    lines.append(f"  steady over the last {g('window', '.2f')} s: {'yes' if out.get('steady') else 'NO (run longer)'}")
+    timing = f"{g('wall_seconds', '.2f')} s wall, real-time factor {g('real_time_factor', '.2f')}"
+    if out.get("startup_seconds") is not None:
+        timing += f", start-up {g('startup_seconds', '.2f')} s"
     lines.append(f"  {out['steps']} steps, {out['newton_iterations']} Newton iterations, "
-                 f"{out['dt_reductions']} dt reductions, {out['wall_seconds']:.2f} s wall, "
-                 f"real-time factor {out['real_time_factor']:.2f}")
+                 f"{out['dt_reductions']} dt reductions, {timing}")
     if "error" in out:
         lines.append(f"  ERROR: {out['error']}")
     return "\n".join(lines)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_in(argv: list[str]) -> str | None:
+    """The subcommand named on the command line (the top-level parser has no options but -h)."""
+    for item in argv:
+        if not item.startswith("-"):
+            return item
+    return None
+
+
+def _register_module(sub, name: str) -> bool:
+    """Import command module ``name`` and let it add its subcommands; False when the module itself (or its
+    package) is not installed. A missing dependency deeper down is a real error and propagates."""
+    try:
+        mod = importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name and name.startswith(exc.name):
+            return False
+        raise
+    mod.register(sub)
+    return True
+
+
+def _placeholder(command: str, module: str):
+    """``func`` of a command listed only for --help (never reached: the real parser is built when the
+    command is on the command line)."""
+    def run(args) -> int:
+        raise SceneError(f"flagbot {command}: the module that provides it ({module}) is not installed")
+    return run
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``flagbot`` parser, importing only what ``command`` needs.
+
+    ``command`` None (``flagbot --help``): every lazy command is listed with its help line from
+    :data:`COMMANDS`, none imported. A command from the table: only its module is imported and registers its full
+    sub-parser. ``"*"`` or an unknown name: every module is imported (the old behaviour; an unknown name then gets
+    argparse's own "invalid choice" message listing everything).
+    """
     parser = argparse.ArgumentParser(prog="flagbot", description="flagbot_sim: soft flagellated robot simulator")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     p = sub.add_parser("run", help="run the DER simulation of a scene and report steady-state outputs")
     add_scene_arguments(p)
     p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's)")
@@ -90,41 +190,83 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("scenes", help="list built-in scenes and the scene keys with units and ranges")
     p.set_defaults(func=cmd_scenes)
-    for name in COMMAND_MODULES:
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name and name.startswith(exc.name):
-                continue
-            raise
-        mod.register(sub)
+    if command in ("run", "scenes"):
+        return parser
+    if command is not None and command in COMMANDS:
+        wanted = [COMMANDS[command][0]]
+    elif command is None:
+        wanted = []
+    else:
+        wanted = COMMAND_MODULES
+    for name in wanted:
+        _register_module(sub, name)
+    present = set(sub.choices)
+    for cmd, (module, help_text) in COMMANDS.items():
+        if cmd not in present:
+            q = sub.add_parser(cmd, help=help_text, add_help=False)
+            q.set_defaults(func=_placeholder(cmd, module))
     return parser
 
 
 def cmd_scenes(args) -> int:
     import dataclasses
 
-    from .scene import EFFECTS, SECTIONS, builtin_scenes
+    from .scene import EFFECTS, SECTIONS, builtin_scenes, format_bounds
     print("built-in scenes:", ", ".join(builtin_scenes()))
     print("\neffects:")
+    width = max(map(len, EFFECTS))
     for k, v in EFFECTS.items():
-        print(f"  {k:12s} {v}")
-    print("\nkeys:")
+        print(f"  {k:{width}s}  {v}")
+    rows = [("key", "default", "unit", "allowed", "meaning")]
     for s, cls in SECTIONS.items():
         for f in dataclasses.fields(cls):
             m = f.metadata
-            rng = " ".join(f"{op}{m[op]}" for op in ("gt", "ge", "lt", "le") if m.get(op) is not None)
-            print(f"  {s}.{f.name:16s} {str(f.default):24s} {m['unit']:8s} {rng:22s} {m['doc']}")
+            default = f.default
+            default = "[" + ", ".join(map(str, default)) + "]" if isinstance(default, tuple) else \
+                (repr(default) if default == "" else str(default))
+            if len(default) > 24:
+                default = default[:21] + "..."
+            rows.append((f"{s}.{f.name}", default, m["unit"] or "-", format_bounds(m) or "-", m["doc"]))
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    print("\nkeys:")
+    for r in rows:
+        print("  " + "  ".join(c.ljust(w) for c, w in zip(r[:4], widths)) + "  " + r[4])
     return 0
 
 
+def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """An error message as one line of at most ``limit`` characters."""
+    text = " ".join(str(message).split())
+    return text if len(text) <= limit else text[:limit - 15] + " ... (truncated)"
+
+
+#: commands that hold no open resource when they return, so their process may skip the final garbage collection
+FAST_EXIT = frozenset({"run", "scenes", "beam", "sweep-plot"})
+
+
+def _fast_exit() -> None:
+    """Make the interpreter's shutdown cheap: move every object into the permanent generation (``gc.freeze``), so
+    the collections at finalization do not walk the ~10^6 objects numba, scipy and the model leave behind. That
+    walk took 0.4-0.5 s, a third of a warm ``flagbot run``; objects still die by reference counting, and the
+    command has closed and flushed what it wrote."""
+    import gc
+    sys.stdout.flush()
+    sys.stderr.flush()
+    gc.freeze()
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    """The ``flagbot`` command. With ``argv`` None (the process's own command line: the console script,
+    ``python -m flagbot_sim``) the process ends after it, and the compute-only commands exit fast."""
+    from_command_line = argv is None
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = _command_in(argv)
+    parser = build_parser(command)
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except SceneError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {one_line(exc)}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as exc:      # record, replay, demo without ROS 2: one line naming the [ros] extra
         from .optional import missing_ros
@@ -132,3 +274,6 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"error: {missing}", file=sys.stderr)
         return 1
+    finally:
+        if from_command_line and command in FAST_EXIT:
+            _fast_exit()

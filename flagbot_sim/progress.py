@@ -1,43 +1,153 @@
-"""A dependency-free progress bar for long runs (stderr, redrawn in place, with rate and ETA)."""
+"""A dependency-free progress display for long runs, on stderr.
+
+On a terminal it is one line redrawn in place (``\\r``), cut to the terminal's width (re-read at every redraw,
+so a resized window is followed) and padded over whatever the previous, longer line left. Anywhere else (a
+pipe, a log file, CI) it writes plain lines, no ``\\r``: one at the first update, then one every
+``log_interval`` seconds of wall time, and the last one on :meth:`ProgressBar.close`.
+
+The ETA is the remaining amount at the rate measured since the first update (so a slow first step, e.g. the
+kernels compiling, does not inflate it), and is shown only once it means something: after ``eta_after``
+seconds and some progress since then. It never reads 'nan'; beyond 100 hours it reads '>99h'.
+"""
 from __future__ import annotations
 
+import math
+import os
+import shutil
 import sys
 import time
+
+BAR_MIN, BAR_MAX = 10, 28
+
+
+def format_duration(seconds: float) -> str:
+    """'42s', '3m05s', '2h07m'; '>99h' beyond a hundred hours."""
+    if not math.isfinite(seconds) or seconds >= 100 * 3600:
+        return ">99h"
+    s = int(round(max(0.0, seconds)))
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+
+
+def _number(x: float) -> str:
+    return f"{x:.4g}" if math.isfinite(x) else "--"
+
+
+def terminal_columns(stream) -> int:
+    """Columns of the terminal ``stream`` writes to: $COLUMNS if set, else the tty's size, else 80."""
+    env = os.environ.get("COLUMNS", "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        return os.get_terminal_size(stream.fileno()).columns or 80
+    except (AttributeError, OSError, ValueError):
+        return shutil.get_terminal_size((80, 24)).columns
 
 
 class ProgressBar:
     def __init__(self, total: float, label: str = "", unit: str = "s", stream=None, enabled: bool = True,
-                 min_interval: float = 0.2):
+                 min_interval: float = 0.2, log_interval: float = 10.0, eta_after: float = 1.0,
+                 tty: bool | None = None, clock=time.perf_counter):
         self.total = float(total)
         self.label = label
         self.unit = unit
         self.stream = stream or sys.stderr
         self.enabled = enabled
-        self.min_interval = min_interval
-        self.t0 = time.perf_counter()
-        self._last = 0.0
+        if tty is None:
+            try:
+                tty = bool(self.stream.isatty())
+            except (AttributeError, ValueError):
+                tty = False
+        self.tty = tty
+        self.min_interval = min_interval if tty else log_interval
+        self.eta_after = eta_after
+        self.clock = clock
+        self.t0 = clock()
         self.value = 0.0
+        self.extra = ""
+        self._first: tuple[float, float] | None = None       # (time, value) of the first update
+        self._last_draw = -math.inf
+        self._drawn_value: float | None = None
+        self._drawn_width = 0                                  # length of the line now on the terminal
 
+    # ---------------------------------------------------------------- numbers
+    def fraction(self) -> float:
+        if not (self.total > 0 and math.isfinite(self.total)):
+            return 1.0
+        if not math.isfinite(self.value):
+            return 0.0
+        return min(1.0, max(0.0, self.value / self.total))
+
+    def eta(self, now: float) -> float | None:
+        """Seconds left at the rate seen since the first update, or None while that rate means nothing."""
+        if self._first is None:
+            return None
+        t1, v1 = self._first
+        done = self.value - v1
+        if now - t1 < self.eta_after or not done > 0 or not math.isfinite(self.value):
+            return None
+        return max(0.0, (self.total - self.value) * (now - t1) / done)
+
+    # ---------------------------------------------------------------- text
+    def text(self, now: float, width: int | None = None) -> str:
+        """The status line, cut to ``width`` characters if given (the bar shrinks first, then the extra text)."""
+        frac = self.fraction()
+        eta = self.eta(now)
+        head = f"{self.label} " if self.label else ""
+        nums = (f" {100 * frac:5.1f}% {_number(self.value)}/{_number(self.total)} {self.unit}"
+                f"  elapsed {format_duration(now - self.t0)}")
+        if eta is not None and frac < 1.0:
+            nums += f"  eta {format_duration(eta)}"
+        extra = f"  {self.extra}" if self.extra else ""
+        bar_width = BAR_MAX
+        if width is not None:
+            room = width - len(head) - len(nums) - len(extra) - 2
+            bar_width = max(BAR_MIN, min(BAR_MAX, room))
+        fill = int(round(frac * bar_width))
+        line = f"{head}[{'#' * fill}{'.' * (bar_width - fill)}]{nums}{extra}"
+        if width is not None and len(line) > width:
+            line = line[:max(0, width - 3)] + "..." if width > 3 else line[:width]
+        return line
+
+    # ---------------------------------------------------------------- drawing
     def update(self, value: float, extra: str = "", force: bool = False) -> None:
-        self.value = value
+        now = self.clock()
+        self.value = float(value)
+        if extra:
+            self.extra = " ".join(str(extra).split())          # one line, whatever the caller passed
+        first = self._first is None
+        if first:
+            self._first = (now, self.value)
         if not self.enabled:
             return
-        now = time.perf_counter()
-        if not force and now - self._last < self.min_interval:
+        if not (force or first) and now - self._last_draw < self.min_interval:
             return
-        self._last = now
-        frac = min(1.0, value / self.total) if self.total > 0 else 1.0
-        width = 28
-        fill = int(round(frac * width))
-        elapsed = now - self.t0
-        eta = elapsed * (1.0 - frac) / frac if frac > 0 else float("nan")
-        line = (f"\r{self.label} [{'#' * fill}{'.' * (width - fill)}] {100 * frac:5.1f}% "
-                f"{value:.4g}/{self.total:.4g} {self.unit}  elapsed {elapsed:5.1f}s  eta {eta:5.1f}s  {extra}")
-        self.stream.write(line[:160].ljust(100))
+        self._draw(now)
+
+    def _draw(self, now: float) -> None:
+        self._last_draw = now
+        self._drawn_value = self.value
+        if self.tty:
+            # one column short of the edge: writing the last column makes some terminals wrap
+            width = max(1, terminal_columns(self.stream) - 1)
+            line = self.text(now, width)
+            pad = " " * max(0, min(self._drawn_width, width) - len(line))
+            self.stream.write("\r" + line + pad)
+            self._drawn_width = len(line)
+        else:
+            self.stream.write(self.text(now) + "\n")
         self.stream.flush()
 
     def close(self) -> None:
-        if self.enabled:
-            self.update(self.value, force=True)
+        if not self.enabled:
+            return
+        if self.tty:
+            self._draw(self.clock())
             self.stream.write("\n")
             self.stream.flush()
+            self._drawn_width = 0
+        elif self._drawn_value != self.value or self._first is None:
+            self._draw(self.clock())

@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import reprlib
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -33,23 +36,85 @@ class SceneError(ValueError):
     """A scene file or override is invalid. The message names the key and the allowed values."""
 
 
+#: a scene file larger than this is refused unread (the built-in ones are ~1 kB)
+MAX_FILE_BYTES = 1 << 20
+#: every length (m) lies in [MIN_LENGTH, MAX_LENGTH]: 1 um to 1 km, and the smallest part of the robot is at least
+#: MIN_LENGTH_RATIO of its overall size (below that an edge vanishes in the rounding of the node positions, and
+#: the reference frames divide by a zero length)
+MIN_LENGTH, MAX_LENGTH, MIN_LENGTH_RATIO = 1.0e-6, 1.0e3, 1.0e-5
+#: largest rotation of the clamp in one time step (rad): a quarter turn
+MAX_CLAMP_TURN = 0.5 * math.pi
+
+_REPR = reprlib.Repr()
+_REPR.maxlist = _REPR.maxtuple = 6
+_REPR.maxdict = 4
+_REPR.maxstring = _REPR.maxother = 60
+_REPR.maxlevel = 3
+
+
+def short(value: Any, limit: int = 120) -> str:
+    """``repr(value)`` for an error message: long lists and strings elided, deep nesting cut, at most ``limit``
+    characters (a refused 1e6-element array is not echoed back)."""
+    try:
+        text = _REPR.repr(value)
+    except Exception:                                       # noqa: BLE001 - a message must never fail
+        text = f"<{type(value).__name__}>"
+    if isinstance(value, str) and len(value) > _REPR.maxstring:
+        text += f" ({len(value)} characters)"
+    elif isinstance(value, (list, tuple, dict)) and len(value) > _REPR.maxlist:
+        text += f" ({len(value)} items)"
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _names(items, limit: int = 5) -> str:
+    """Some names for a message: the first ``limit``, then how many more."""
+    items = list(items)
+    text = ", ".join(short(x, 60) for x in items[:limit])
+    return text + (f" and {len(items) - limit} more" if len(items) > limit else "")
+
+
 def spec(unit: str = "", *, gt: float | None = None, ge: float | None = None, lt: float | None = None,
-         le: float | None = None, doc: str = "", choices: tuple | None = None) -> dict:
-    return {"unit": unit, "gt": gt, "ge": ge, "lt": lt, "le": le, "doc": doc, "choices": choices}
+         le: float | None = None, doc: str = "", choices: tuple | None = None, items: str | None = None,
+         length: int | None = None, max_len: int | None = None, one_line: bool = False) -> dict:
+    """Field metadata: unit, bounds, choices; for lists the type of their ``items`` ('str' or 'number') and an
+    exact ``length``; for strings (and lists) a ``max_len``; ``one_line`` strings hold no line breaks or tabs."""
+    return {"unit": unit, "gt": gt, "ge": ge, "lt": lt, "le": le, "doc": doc, "choices": choices, "items": items,
+            "length": length, "max_len": max_len, "one_line": one_line}
+
+
+def format_bounds(meta: dict) -> str:
+    """The allowed range of a field as text, e.g. '>0 <=10' or 'auto|arrow|splu'."""
+    parts = [f"{word}{meta[op]:g}" for op, word in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
+             if meta.get(op) is not None]
+    if meta.get("choices"):
+        parts.append("|".join(meta["choices"]))
+    if meta.get("length"):
+        parts.append(f"{meta['length']} {meta.get('items') or 'item'}s")
+    return " ".join(parts)
 
 
 def _f(default, unit="", doc="", **bounds):
     return field(default=default, metadata=spec(unit, doc=doc, **bounds))
 
 
+#: Accuracy presets: discretisation values applied on top of the scene file, under explicit overrides. Their
+#: measured error (largest relative error of the steady outputs) and speed are in docs/accuracy.md: fast
+#: <= 3.2%, default (the paper's discretisation) <= 1.5%, accurate <= 0.72% over the five study cases.
+PRESETS: dict[str, dict[str, Any]] = {
+    "fast": {"time.dt": 2.0e-2, "flagellum.edge_length": 8.22e-3},
+    "default": {},
+    "accurate": {"time.dt": 5.0e-3, "flagellum.edge_length": 2.055e-3},
+}
+
+
 @dataclass(frozen=True)
 class SceneSection:
-    name: str = _f("unnamed", doc="scene name")
-    description: str = _f("", doc="free text")
+    name: str = _f("unnamed", doc="scene name", max_len=200, one_line=True)
+    description: str = _f("", doc="free text", max_len=10000)
     effects: tuple = _f(("inertia", "rft", "head_drag", "head_torque", "motor"),
-                        doc="physical effects to build, from: " + ", ".join(EFFECTS))
+                        doc="physical effects to build, from: " + ", ".join(EFFECTS), items="str", max_len=64)
     preset: str = _f("default", doc="accuracy preset: discretisation applied on top of the scene file "
-                                    "(overrides still win); see PRESETS")
+                                    "(overrides still win); see PRESETS", choices=tuple(PRESETS))
 
 
 @dataclass(frozen=True)
@@ -65,8 +130,9 @@ class MotorSection:
 
 @dataclass(frozen=True)
 class TimeSection:
-    dt: float = _f(1.0e-2, "s", "time step (with time.rtol > 0: the first and the largest step)", gt=0.0, le=10.0)
-    duration: float = _f(20.0, "s", "simulated time of a CLI run", gt=0.0)
+    dt: float = _f(1.0e-2, "s", "time step (with time.rtol > 0: the first and the largest step)", ge=1.0e-6,
+                   le=10.0)
+    duration: float = _f(20.0, "s", "simulated time of a CLI run", gt=0.0, le=1.0e7)
     integrator: str = _f("implicit_euler", "", "time integrator: 'implicit_euler' (first order, the paper's) or "
                                                "'bdf2' (second order, L-stable)",
                          choices=("implicit_euler", "bdf2"))
@@ -80,31 +146,33 @@ class TimeSection:
 
 @dataclass(frozen=True)
 class FlagellumSection:
-    length: float = _f(0.111, "m", "flagellum length L", gt=0.0)
-    radius: float = _f(3.2e-3, "m", "flagellum radius r0", gt=0.0)
-    edge_length: float = _f(4.11e-3, "m", "target length of a flagellum edge (rounded to fit L)", gt=0.0)
-    youngs_modulus: float = _f(1.2e6, "Pa", "Young's modulus E", gt=0.0)
-    poisson_ratio: float = _f(0.5, "", "Poisson's ratio (G = E / (2(1+nu)))", gt=-1.0, le=0.5)
-    density: float = _f(1000.0, "kg/m^3", "density of flagella, plate and head", gt=0.0)
+    length: float = _f(0.111, "m", "flagellum length L", ge=MIN_LENGTH, le=MAX_LENGTH)
+    radius: float = _f(3.2e-3, "m", "flagellum radius r0", ge=MIN_LENGTH, le=MAX_LENGTH)
+    edge_length: float = _f(4.11e-3, "m", "target length of a flagellum edge (rounded to fit L)", ge=MIN_LENGTH,
+                            le=MAX_LENGTH)
+    youngs_modulus: float = _f(1.2e6, "Pa", "Young's modulus E", gt=0.0, le=1.0e13)
+    poisson_ratio: float = _f(0.5, "", "Poisson's ratio (G = E / (2(1+nu)))", ge=-0.99, le=0.5)
+    density: float = _f(1000.0, "kg/m^3", "density of flagella, plate and head", gt=0.0, le=1.0e5)
 
 
 @dataclass(frozen=True)
 class MediumSection:
-    mu: float = _f(6.828, "Pa*s", "medium coefficient mu (RFT and Stokes terms)", gt=0.0)
+    mu: float = _f(6.828, "Pa*s", "medium coefficient mu (RFT and Stokes terms)", gt=0.0, le=1.0e10)
 
 
 @dataclass(frozen=True)
 class HeadSection:
-    radius: float = _f(0.02, "m", "head radius R_h", gt=0.0)
-    C1: float = _f(2.420, "", "Stokes drag factor C1", ge=0.0)
-    C2: float = _f(0.039, "", "Stokes torque factor C2", ge=0.0)
+    radius: float = _f(0.02, "m", "head radius R_h", ge=MIN_LENGTH, le=MAX_LENGTH)
+    C1: float = _f(2.420, "", "Stokes drag factor C1", ge=0.0, le=1.0e6)
+    C2: float = _f(0.039, "", "Stokes torque factor C2", ge=0.0, le=1.0e6)
 
 
 @dataclass(frozen=True)
 class PlateSection:
-    diameter: float = _f(0.04, "m", "plate diameter L_p; flagella sit at R_d = L_p/2", gt=0.0)
+    diameter: float = _f(0.04, "m", "plate diameter L_p; flagella sit at R_d = L_p/2", ge=MIN_LENGTH,
+                         le=MAX_LENGTH)
     thickness: float = _f(4.11e-3, "m", "plate thickness: the rigid axial stub each flagellum is clamped in",
-                          gt=0.0)
+                          ge=MIN_LENGTH, le=MAX_LENGTH)
 
 
 @dataclass(frozen=True)
@@ -113,7 +181,7 @@ class NumericsSection:
     force_tol: float = _f(1.0e-7, "", "Newton tolerance on the force residual, relative to EI/L^2",
                           gt=0.0, lt=1.0)
     max_iterations: int = _f(25, "", "Newton iterations per attempt", ge=1, le=500)
-    min_dt: float = _f(1.0e-6, "s", "smallest time step before a step is declared failed", gt=0.0)
+    min_dt: float = _f(1.0e-6, "s", "smallest time step before a step is declared failed", ge=1.0e-12)
     linear_solver: str = _f("auto", "", "Newton's linear solver: 'arrow' (banded flagella + Schur complement of "
                                         "the core), 'splu' (SuperLU), 'auto' (arrow when the network allows)",
                             choices=("auto", "arrow", "splu"))
@@ -121,13 +189,14 @@ class NumericsSection:
 
 @dataclass(frozen=True)
 class ObserveSection:
-    steady_window: float = _f(2.0, "s", "window over which steady-state rates are averaged", gt=0.0)
-    steady_rtol: float = _f(1.0e-3, "", "relative change between windows counted as steady", gt=0.0)
+    steady_window: float = _f(2.0, "s", "window over which steady-state rates are averaged", gt=0.0, le=1.0e6)
+    steady_rtol: float = _f(1.0e-3, "", "relative change between windows counted as steady", gt=0.0, le=1.0)
 
 
 @dataclass(frozen=True)
 class GravitySection:
-    g: tuple = _f((0.0, 0.0, -9.81), "m/s^2", "gravity vector (used only with the 'gravity' effect)")
+    g: tuple = _f((0.0, 0.0, -9.81), "m/s^2", "gravity vector (used only with the 'gravity' effect)", items="number",
+                  length=3, ge=-1.0e4, le=1.0e4)
 
 
 SECTIONS: dict[str, type] = {
@@ -135,16 +204,6 @@ SECTIONS: dict[str, type] = {
     "flagellum": FlagellumSection, "medium": MediumSection, "head": HeadSection, "plate": PlateSection,
     "numerics": NumericsSection, "observe": ObserveSection, "gravity": GravitySection,
 }
-
-#: Accuracy presets: discretisation values applied on top of the scene file, under explicit overrides. Their
-#: measured error (largest relative error of the steady outputs) and speed are in docs/accuracy.md: fast
-#: <= 3.2%, default (the paper's discretisation) <= 1.5%, accurate <= 0.72% over the five study cases.
-PRESETS: dict[str, dict[str, Any]] = {
-    "fast": {"time.dt": 2.0e-2, "flagellum.edge_length": 8.22e-3},
-    "default": {},
-    "accurate": {"time.dt": 5.0e-3, "flagellum.edge_length": 2.055e-3},
-}
-
 
 @dataclass(frozen=True)
 class Scene:
@@ -256,16 +315,46 @@ def _toml_value(v: Any) -> str:
     return repr(v)
 
 
-def _split_key(dotted: str) -> tuple[str, str]:
-    if "." not in dotted:
-        raise SceneError(f"override key {dotted!r} must be 'section.key'; sections: {', '.join(SECTIONS)}")
+def _split_key(dotted: Any) -> tuple[str, str]:
+    if not isinstance(dotted, str) or "." not in dotted:
+        raise SceneError(f"override key {short(dotted)} must be 'section.key'; sections: {', '.join(SECTIONS)}")
     section, key = dotted.split(".", 1)
     if section not in SECTIONS:
-        raise SceneError(f"unknown section {section!r} in {dotted!r}; valid sections: {', '.join(SECTIONS)}")
+        raise SceneError(f"unknown section {short(section)} in {short(dotted)}; valid sections: "
+                         f"{', '.join(SECTIONS)}")
     valid = [f.name for f in dataclasses.fields(SECTIONS[section])]
     if key not in valid:
-        raise SceneError(f"unknown key {dotted!r}; valid keys in [{section}]: {', '.join(valid)}")
+        raise SceneError(f"unknown key {short(dotted)}; valid keys in [{section}]: {', '.join(valid)}")
     return section, key
+
+
+def _toml_loads(text: str, what: str) -> dict:
+    """``tomllib.loads`` with every failure as a SceneError (deep nesting exhausts tomllib's recursion)."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{what}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{what}: {_deepest(text)} nested too deeply for a scene") from None
+
+
+def _deepest(text: str, limit: int = 100) -> str:
+    """Where a TOML text nests brackets more than ``limit`` deep, as 'section.key (line N)', for the message
+    after tomllib ran out of recursion (a rough scan: brackets inside strings count too)."""
+    section, depth = "", 0
+    for number, line in enumerate(text.splitlines(), 1):
+        stripped = line.strip()
+        if depth == 0 and stripped.startswith("[") and stripped.endswith("]"):
+            section = stripped.strip("[]").strip()
+            continue
+        if depth == 0:
+            key = line.split("=", 1)[0].strip() if "=" in line else ""
+        for c in line:
+            depth += (c in "[{") - (c in "]}")
+            if depth > limit:
+                dotted = f"{section}.{key}" if section and key else (key or section or "a value")
+                return f"{short(dotted, 80)} (line {number}): the value is"
+    return "a value is"
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:
@@ -275,8 +364,8 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     """
     out: dict[str, Any] = {}
     for item in items:
-        if "=" not in item:
-            raise SceneError(f"override {item!r} must look like section.key=value")
+        if not isinstance(item, str) or "=" not in item:
+            raise SceneError(f"override {short(item)} must look like section.key=value")
         key, raw = item.split("=", 1)
         key = key.strip()
         _split_key(key)
@@ -284,8 +373,37 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
             value = tomllib.loads(f"v = {raw.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             value = raw.strip()
+        except RecursionError:
+            raise SceneError(f"{key}: the value is nested too deeply") from None
         out[key] = value
     return out
+
+
+def _number(key: str, meta: dict, value: Any, what: str = "") -> float:
+    """``value`` as a finite float, or a SceneError naming ``key``."""
+    unit = meta["unit"] or "dimensionless"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(f"{key}{what} must be a number ({unit}), got {short(value)}")
+    try:
+        value = float(value)
+    except OverflowError:                       # an integer beyond the float range
+        raise SceneError(f"{key}{what} = {short(value)} is out of range for a number ({unit})") from None
+    if not math.isfinite(value):
+        raise SceneError(f"{key}{what} must be finite, got {value!r}")
+    return value
+
+
+_BOUNDS = (("gt", lambda a, b: a > b, ">"), ("ge", lambda a, b: a >= b, ">="),
+           ("lt", lambda a, b: a < b, "<"), ("le", lambda a, b: a <= b, "<="))
+
+
+def _check_bounds(key: str, meta: dict, value: Any) -> None:
+    if all(meta.get(bound) is None or op(value, meta[bound]) for bound, op, _ in _BOUNDS):
+        return
+    unit = f" {meta['unit']}" if meta["unit"] else ""
+    allowed = " and ".join(f"{word} {meta[bound]:g}{unit}" for bound, _, word in _BOUNDS
+                           if meta.get(bound) is not None)
+    raise SceneError(f"{key} = {short(value)}{unit} is out of range: must be {allowed}")
 
 
 def _check_value(section: str, f: dataclasses.Field, value: Any) -> Any:
@@ -294,35 +412,45 @@ def _check_value(section: str, f: dataclasses.Field, value: Any) -> Any:
     default = f.default
     if isinstance(default, bool):
         if not isinstance(value, bool):
-            raise SceneError(f"{key} must be true or false, got {value!r}")
+            raise SceneError(f"{key} must be true or false, got {short(value)}")
         return value
     if isinstance(default, int):
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and value.is_integer():
-                value = int(value)
+                # beyond 2**53 a float is not an exact integer: left a float, the range check refuses it
+                value = int(value) if abs(value) <= 2 ** 53 else value
             else:
-                raise SceneError(f"{key} must be an integer, got {value!r}")
+                raise SceneError(f"{key} must be an integer, got {short(value)}")
     elif isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SceneError(f"{key} must be a number ({meta['unit'] or 'dimensionless'}), got {value!r}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise SceneError(f"{key} must be finite, got {value!r}")
+        value = _number(key, meta, value)
     elif isinstance(default, str):
         if not isinstance(value, str):
-            raise SceneError(f"{key} must be a string, got {value!r}")
+            raise SceneError(f"{key} must be a string, got {short(value)}")
+        if meta.get("max_len") and len(value) > meta["max_len"]:
+            raise SceneError(f"{key} is {len(value)} characters long: at most {meta['max_len']} allowed")
+        allowed = "" if meta.get("one_line") else "\t\n\r"
+        if any((ord(c) < 32 or ord(c) == 127) and c not in allowed for c in value):
+            raise SceneError(f"{key} = {short(value)} holds control characters")
     elif isinstance(default, tuple):
         if not isinstance(value, (list, tuple)):
-            raise SceneError(f"{key} must be a list, got {value!r}")
-        value = tuple(value)
+            raise SceneError(f"{key} must be a list, got {short(value)}")
+        if meta.get("length") is not None and len(value) != meta["length"]:
+            raise SceneError(f"{key} must be a list of {meta['length']} {meta.get('items') or 'item'}s"
+                             f"{' (' + meta['unit'] + ')' if meta['unit'] else ''}, got {short(value)}")
+        if meta.get("max_len") and len(value) > meta["max_len"]:
+            raise SceneError(f"{key} has {len(value)} items: at most {meta['max_len']} allowed")
+        if meta.get("items") == "str":
+            bad = [x for x in value if not isinstance(x, str)]
+            if bad:
+                raise SceneError(f"{key} must be a list of names (strings), got {short(value)}")
+        elif meta.get("items") == "number":
+            value = [_number(key, meta, x, f"[{i}]") for i, x in enumerate(value)]
+            for x in value:
+                _check_bounds(key, meta, x)
+        return tuple(value)
     if meta.get("choices") and value not in meta["choices"]:
-        raise SceneError(f"{key} = {value!r} is not allowed; choose one of {', '.join(meta['choices'])}")
-    for bound, op, word in (("gt", lambda a, b: a > b, ">"), ("ge", lambda a, b: a >= b, ">="),
-                            ("lt", lambda a, b: a < b, "<"), ("le", lambda a, b: a <= b, "<=")):
-        b = meta.get(bound)
-        if b is not None and not op(value, b):
-            unit = f" {meta['unit']}" if meta["unit"] else ""
-            raise SceneError(f"{key} = {value!r}{unit} is out of range: must be {word} {b!r}{unit}")
+        raise SceneError(f"{key} = {short(value)} is not allowed; choose one of {', '.join(meta['choices'])}")
+    _check_bounds(key, meta, value)
     return value
 
 
@@ -334,19 +462,20 @@ def scene_from_dict(data: dict[str, Any], source: str = "", overrides: dict[str,
     """
     overrides = dict(overrides or {})
     if not isinstance(data, dict):
-        raise SceneError("a scene must be a table of sections")
+        raise SceneError(f"a scene must be a table of sections, got {short(data)}")
     unknown = [s for s in data if s not in SECTIONS]
     if unknown:
-        raise SceneError(f"unknown section(s) {', '.join(map(repr, unknown))}; valid sections: "
-                         f"{', '.join(SECTIONS)}")
+        raise SceneError(f"unknown section(s) {_names(unknown)}; valid sections: {', '.join(SECTIONS)}")
     merged: dict[str, dict[str, Any]] = {s: {} for s in SECTIONS}
     for s, values in data.items():
         if not isinstance(values, dict):
-            raise SceneError(f"[{s}] must be a table of key = value")
+            raise SceneError(f"[{s}] must be a table of key = value, got {s} = {short(values)}")
         merged[s].update(values)
+    for dotted in overrides:
+        _split_key(dotted)
     preset_name = overrides.get("scene.preset", merged["scene"].get("preset", "default"))
-    if preset_name not in PRESETS:
-        raise SceneError(f"scene.preset = {preset_name!r} is not allowed; choose one of {', '.join(PRESETS)}")
+    if not isinstance(preset_name, str) or preset_name not in PRESETS:
+        raise SceneError(f"scene.preset = {short(preset_name)} is not allowed; choose one of {', '.join(PRESETS)}")
     for dotted, value in list(PRESETS[preset_name].items()) + list(overrides.items()):
         s, k = _split_key(dotted)
         merged[s][k] = value
@@ -356,7 +485,7 @@ def scene_from_dict(data: dict[str, Any], source: str = "", overrides: dict[str,
         values = merged[s]
         bad = [k for k in values if k not in fields]
         if bad:
-            raise SceneError(f"unknown key(s) {', '.join(f'{s}.{k}' for k in bad)}; valid keys in [{s}]: "
+            raise SceneError(f"unknown key(s) {_names(f'{s}.{k}' for k in bad)}; valid keys in [{s}]: "
                              f"{', '.join(fields)}")
         kwargs = {k: _check_value(s, fields[k], v) for k, v in values.items()}
         sections[s] = cls(**kwargs)
@@ -369,9 +498,9 @@ def _check_consistency(sc: Scene) -> None:
     eff = sc.scene.effects
     for e in eff:
         if e not in EFFECTS:
-            raise SceneError(f"scene.effects: unknown effect {e!r}; valid effects: {', '.join(EFFECTS)}")
+            raise SceneError(f"scene.effects: unknown effect {short(e)}; valid effects: {', '.join(EFFECTS)}")
     if len(set(eff)) != len(eff):
-        raise SceneError(f"scene.effects lists an effect twice: {list(eff)}")
+        raise SceneError(f"scene.effects lists an effect twice: {short(list(eff))}")
     fl = sc.flagellum
     if fl.radius >= fl.length:
         raise SceneError(f"flagellum.radius = {fl.radius} m must be smaller than flagellum.length = {fl.length} m")
@@ -383,10 +512,12 @@ def _check_consistency(sc: Scene) -> None:
                          f"{fl.length} m")
     if fl.length / fl.edge_length > 20000:
         raise SceneError(f"flagellum.edge_length = {fl.edge_length} m gives more than 20000 edges per flagellum")
+    _check_proportions(sc)
     if sc.numerics.min_dt >= sc.time.dt:
         raise SceneError(f"numerics.min_dt = {sc.numerics.min_dt} s must be smaller than time.dt = {sc.time.dt} s")
-    if len(sc.gravity.g) != 3 or not all(isinstance(x, (int, float)) for x in sc.gravity.g):
-        raise SceneError(f"gravity.g must be a list of 3 numbers (m/s^2), got {list(sc.gravity.g)!r}")
+    if sc.observe.steady_window < sc.time.dt:
+        raise SceneError(f"observe.steady_window = {sc.observe.steady_window} s must be at least one time step "
+                         f"(time.dt = {sc.time.dt} s)")
     if sc.clamped:
         head_listed = [e for e in HEAD_EFFECTS if e in eff]
         if head_listed:
@@ -395,6 +526,32 @@ def _check_consistency(sc: Scene) -> None:
         if sc.robot.n_flagella != 1:
             raise SceneError(f"robot.n_flagella = {sc.robot.n_flagella}: the 'clamp' scene drives exactly one "
                              "flagellum; set robot.n_flagella = 1")
+        # the clamp turns the plate arm by omega*dt per step, imposed: at half a turn the arm's tangent reverses
+        # and its frame transport is singular, at a whole turn the motion aliases to none
+        if abs(sc.omega_T) * sc.time.dt > MAX_CLAMP_TURN:
+            limit = MAX_CLAMP_TURN / sc.time.dt / RPM
+            raise SceneError(f"motor.omega_rpm = {sc.motor.omega_rpm:g} rpm turns the clamp by "
+                             f"{math.degrees(abs(sc.omega_T) * sc.time.dt):.0f} deg per step of time.dt = "
+                             f"{sc.time.dt:g} s; at most {math.degrees(MAX_CLAMP_TURN):.0f} deg: |omega_rpm| <= "
+                             f"{limit:.0f} rpm at this dt, or a smaller time.dt")
+
+
+def _check_proportions(sc: Scene) -> None:
+    """Refuse a robot whose smallest part vanishes next to its overall size (MIN_LENGTH_RATIO): its edge would
+    be lost in the rounding of the node coordinates and the model would divide by a zero length."""
+    parts = {"flagellum.length": sc.flagellum.length, "flagellum.edge_length": sc.flagellum.edge_length,
+             "flagellum.radius": sc.flagellum.radius, "plate.diameter": sc.plate.diameter,
+             "plate.thickness": sc.plate.thickness}
+    if not sc.clamped:
+        parts["head.radius"] = sc.head.radius
+    largest = max(parts, key=parts.get)
+    size = sc.flagellum.length + sc.plate.thickness + 0.5 * sc.plate.diameter + \
+        (2.0 * sc.head.radius if not sc.clamped else 0.0)
+    for key, value in parts.items():
+        if value < MIN_LENGTH_RATIO * size:
+            raise SceneError(f"{key} = {value:g} m is too small next to {largest} = {parts[largest]:g} m: every "
+                             f"part of the robot must be at least {MIN_LENGTH_RATIO:g} of its overall size "
+                             f"({size:.3g} m), i.e. >= {MIN_LENGTH_RATIO * size:.3g} m")
 
 
 # ---------------------------------------------------------------- loading
@@ -405,16 +562,58 @@ def builtin_scenes() -> list[str]:
 
 
 def resolve_scene_path(name_or_path: str | Path) -> Path:
+    """The file a scene name or path means: a built-in scene's name, or an existing regular file (never a
+    directory, FIFO or device: reading one would fail or block)."""
+    if isinstance(name_or_path, str) and not name_or_path.strip():
+        raise SceneError(f"no scene given (an empty name); use a built-in scene ({', '.join(builtin_scenes())}) "
+                         "or a .toml path")
     p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.exists():
-            raise SceneError(f"scene file {str(p)!r} does not exist")
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        st = None
+    except (OSError, ValueError) as exc:             # ValueError: a NUL byte in the name
+        raise SceneError(f"scene {short(str(p))} cannot be read: {getattr(exc, 'strerror', None) or exc}") \
+            from None
+    if p.suffix == ".toml" or st is not None:
+        if st is None:
+            raise SceneError(f"scene file {short(str(p))} does not exist")
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+            raise SceneError(f"scene {short(str(p))} is {kind}; give a .toml file or a built-in scene name")
+        if not os.access(p, os.R_OK):
+            raise SceneError(f"scene file {short(str(p))} is not readable (permission denied)")
         return p
-    candidate = resources.files("flagbot_sim.scenes") / f"{name_or_path}.toml"
-    if candidate.is_file():
-        return Path(str(candidate))
-    raise SceneError(f"unknown scene {str(name_or_path)!r}: not a file, and not a built-in scene "
+    if "/" not in str(name_or_path) and len(str(name_or_path)) < 256:
+        candidate = resources.files("flagbot_sim.scenes") / f"{name_or_path}.toml"
+        if candidate.is_file():
+            return Path(str(candidate))
+    raise SceneError(f"unknown scene {short(str(name_or_path))}: not a file, and not a built-in scene "
                      f"({', '.join(builtin_scenes())})")
+
+
+def read_scene_text(path: Path) -> str:
+    """The text of a scene file: at most MAX_FILE_BYTES, UTF-8 (a BOM is allowed), as TOML requires."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise SceneError(f"scene file {short(str(path))} cannot be read: {exc.strerror}") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise SceneError(f"scene file {short(str(path))} is larger than {MAX_FILE_BYTES >> 20} MiB; a scene "
+                         "file holds a few dozen keys (the built-in ones are ~1 KiB)")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise SceneError(f"scene file {short(str(path))} is not UTF-8 text (TOML must be): byte "
+                         f"0x{raw[exc.start]:02x} at line {line}, column {column}") from None
+    return text.removeprefix("\ufeff")
+
+
+def _sets_nothing(data: dict) -> bool:
+    return all(isinstance(v, dict) and not v for v in data.values())
 
 
 def node_overrides(n_flagella: int, scene_overrides) -> list[str]:
@@ -426,13 +625,20 @@ def node_overrides(n_flagella: int, scene_overrides) -> list[str]:
 
 
 def load_scene(name_or_path: str | Path, overrides: dict[str, Any] | list[str] | None = None) -> Scene:
-    """Load a built-in scene by name (``design1``) or a TOML file by path, then apply overrides."""
+    """Load a built-in scene by name (``design1``) or a TOML file by path, then apply overrides.
+
+    A file that sets no key at all (empty, only comments, only empty tables) is refused: it would silently run
+    on every default.
+    """
     path = resolve_scene_path(name_or_path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML: {exc}") from None
-    data.setdefault("scene", {}).setdefault("name", path.stem)
+    data = _toml_loads(read_scene_text(path), str(path))
+    if _sets_nothing(data):
+        raise SceneError(f"scene file {short(str(path))} sets no keys (it is empty, or has only comments or empty "
+                         "tables), so every value would be a default; start from a built-in scene "
+                         "(flagbot scenes lists them and every key)")
+    scene_table = data.setdefault("scene", {})
+    if isinstance(scene_table, dict):
+        scene_table.setdefault("name", path.stem)
     scene = scene_from_dict(data, source=str(path))
     if overrides:
         scene = scene.with_overrides(overrides)

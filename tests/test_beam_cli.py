@@ -51,3 +51,27 @@ def test_bad_input_is_a_one_line_error(capsys, argv, needle):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and needle in err and "\n" not in err
+
+
+def test_a_clamped_scene_is_refused_with_the_reason(capsys):
+    # the balance solves the free robot's head torque and drag balance; the clamped scene holds its head
+    assert main(["beam", "clamped_flagellum", "--json"]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert captured.out == "" and err.startswith("error: beam: scene 'clamped_flagellum'") and "\n" not in err
+    assert "head is held fixed" in err and "free robot" in err
+
+
+def test_json_is_strict_even_for_a_failed_point(capsys, monkeypatch):
+    # a point the balance could not solve carries NaN; the JSON writes null where Python's json writes NaN
+    import flagbot_sim.beam.cli as beam_cli
+
+    class Failed:
+        converged = False
+
+        def to_dict(self):
+            return {"omega_T": 1.0, "omega_h": float("nan"), "v_h": float("inf"), "converged": False}
+    monkeypatch.setattr(beam_cli, "solve_balance_curve", lambda *a, **k: [Failed()])
+    assert main(["beam", "design1", "--json"]) == 1
+    (row,) = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert row["omega_h"] is None and row["v_h"] is None and row["omega_T"] == 1.0

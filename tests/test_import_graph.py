@@ -157,7 +157,7 @@ def test_the_graph_sees_the_imports_that_matter():
     g = import_graph()
     assert "flagbot_sim.bag.writer" in g["flagbot_sim.bag"]                 # from .writer import BagWriter
     assert "flagbot_sim.ros.recorder" in g["flagbot_sim.bagtools"]          # inside cmd_record
-    assert "flagbot_sim.world" in g["flagbot_sim.resim"]                    # from . import world
+    assert "flagbot_sim.physics.warmup" in g["flagbot_sim.physics.simulation"]   # from . import warmup
     assert {"flagbot_sim.bagtools", "flagbot_sim.sweep", "flagbot_sim.beam.cli"} <= g["flagbot_sim.cli"]
     # a cycle is found and printed as a path back to its start
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c", "a"]]

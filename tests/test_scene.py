@@ -49,7 +49,7 @@ def test_overrides_and_units():
     ("flagellum.lenght=0.1", ["flagellum.lenght", "length", "radius"]),
     ("robot.n_flagella=0", ["robot.n_flagella", ">= 1"]),
     ("robot.n_flagella=2.5", ["robot.n_flagella", "integer"]),
-    ("flagellum.length=-0.1", ["flagellum.length", "> 0"]),
+    ("flagellum.length=-0.1", ["flagellum.length", ">= 1e-06 m and <= 1000 m"]),
     ("flagellum.radius=0.2", ["flagellum.radius", "flagellum.length"]),
     ("flagellum.edge_length=1.0", ["flagellum.edge_length", "flagellum.length"]),
     ("medium.mu='thick'", ["medium.mu", "number"]),
@@ -65,6 +65,17 @@ def test_bad_values_are_refused_with_the_key_and_what_is_allowed(override, words
         load_scene("design1", [override])
     for w in words:
         assert w in str(exc.value)
+
+
+def test_the_clamp_turns_at_most_a_quarter_turn_per_step():
+    # at half a turn per step the clamped arm's tangent reverses (the frame transport divides by zero); at a
+    # whole turn the imposed motion aliases to none
+    assert load_scene("clamped_flagellum", ["motor.omega_rpm=-1500"]).omega_T < 0
+    for rpm, dt in ((3000, 0.01), (6000, 0.01), (-1600, 0.01), (100, 2.0)):
+        with pytest.raises(SceneError, match="motor.omega_rpm") as exc:
+            load_scene("clamped_flagellum", [f"motor.omega_rpm={rpm}", f"time.dt={dt}"])
+        assert "deg per step of time.dt" in str(exc.value)
+    assert load_scene("clamped_flagellum", ["motor.omega_rpm=3000", "time.dt=0.004"]).time.dt == 0.004
 
 
 def test_clamp_cannot_be_combined_with_head_effects_or_several_flagella():

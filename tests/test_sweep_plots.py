@@ -1,5 +1,7 @@
 """Sweep figures and summary: drawn from the CSV alone, with the series, crossovers and steepest-slope points the
 paper's figures have (SpeedVSFlagellaNumber, SpeedVSFlagellaLengthandNumber, comparison)."""
+import json
+import math
 import os
 import subprocess
 import sys
@@ -50,12 +52,10 @@ def test_sweep_plot_needs_only_the_csv(sweep_dir, tmp_path):
     copy.mkdir()
     for name in ("sweep.json", "results.csv"):
         (copy / name).write_bytes((sweep_dir / name).read_bytes())
-    # the CLI path with the simulator and the beam solver booby-trapped (other commands import them when they
-    # register, so "not imported" cannot be asked of the CLI; "never called" can)
-    code = ("import sys; from flagbot_sim.cli import main; import flagbot_sim.physics as ph, flagbot_sim.beam as bm\n"
-            "def boom(*a, **k): raise AssertionError('sweep-plot ran a simulation')\n"
-            "ph.Simulation.__init__ = boom; bm.balance.solve_balance = boom; bm.solve_balance = boom\n"
-            "sys.exit(main(['sweep-plot', sys.argv[1]]))")
+    # the CLI path (commands are imported lazily): neither the simulator nor the beam solver is even imported
+    code = ("import sys; from flagbot_sim.cli import main; code = main(['sweep-plot', sys.argv[1]])\n"
+            "bad = [m for m in ('flagbot_sim.physics', 'flagbot_sim.beam', 'numba') if m in sys.modules]\n"
+            "assert not bad, bad; sys.exit(code)")
     res = python_c(code, str(copy))
     assert res.returncode == 0, res.stderr
     for L in ("50", "60"):
@@ -64,6 +64,8 @@ def test_sweep_plot_needs_only_the_csv(sweep_dir, tmp_path):
             assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     assert (copy / "speed_vs_length.png").stat().st_size > 10_000
     assert (copy / "summary.json").exists() and "n=3 overtakes n=2" in res.stdout
+    for name in ("summary.json", "sweep.json"):       # strict JSON: no NaN / Infinity tokens
+        json.loads((copy / name).read_text(), parse_constant=lambda c: pytest.fail(f"{c} in {name}"))
     # the library path, in a fresh interpreter: plotting does not even import the simulator or the beam solver
     code = ("import sys; from flagbot_sim.sweep.plots import make_all; out = make_all(sys.argv[1]); "
             "bad = [m for m in ('flagbot_sim.physics.simulation', 'flagbot_sim.physics.model', 'flagbot_sim.beam') "
@@ -145,3 +147,40 @@ def test_failed_points_are_left_out_of_the_curves():
     rows[2] = row("nlb", 2, 2.0, float("nan"), error="no steady state found")
     ln = lines_by_label(figure_speed(rows))["NLB n=2"]
     np.testing.assert_array_equal(ln.get_xdata(), [0.0, 1.0, 3.0])
+
+
+# ---------------------------------------------------------------- figures a person can read
+def test_every_mark_has_a_letter_of_its_own_and_every_panel_a_key():
+    # both beam regimes cross as well as DER: three crossover marks, three letters, three looks
+    x = np.arange(0.0, 11.0)
+    rows = []
+    for fw, at in (("der", 5.0), ("nlb-nohead", 3.0), ("nlb", 7.0)):
+        rows += [row(fw, 2, xi, xi) for xi in x] + [row(fw, 3, xi, 2 * xi - at) for xi in x]
+    ax = figure_speed(rows).axes[0]
+    marks = [l for l in ax.get_lines() if "crossover" in l.get_label()]
+    letters = [l.get_label().split(":")[0] for l in marks]
+    assert sorted(letters) == ["C", "D", "D'"]
+    looks = {(l.get_marker(), l.get_markerfacecolor()) for l in marks}
+    assert len(looks) == 3
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert all(l.get_label() in legend for l in marks)
+    # the letters are written beside their marks too
+    assert sorted(t.get_text() for t in ax.texts if "crossover" not in t.get_text()) == ["C", "D", "D'"]
+    # head spin: both panels carry a legend naming their curves
+    for panel in figure_head_spin(rows).axes:
+        texts = [t.get_text() for t in panel.get_legend().get_texts()]
+        assert "DER n=2" in texts and "NLB n=3" in texts
+    # the length figure's codes are explained in the legend's title
+    length = figure_length([{**r, "L": 0.089} for r in rows])
+    key = length.axes[0].get_legend().get_title().get_text()
+    assert "D = DER" in key and "B = NLB" in key and "D89n2: DER, L = 89 mm, n = 2" in key
+
+
+def test_summary_json_is_strict_where_a_ratio_is_undefined(tmp_path):
+    from flagbot_sim.cliutil import dumps
+    x = np.arange(1.0, 4.0)
+    rows = [row("der", 2, xi, 0.0) for xi in x] + [row("nlb", 2, xi, xi) for xi in x]   # DER at rest: 0/0
+    s = summarise(rows)
+    assert math.isnan(s["beam_vs_der"]["nlb n=2"]["relative_difference"][0])
+    back = json.loads(dumps(s), parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert back["beam_vs_der"]["nlb n=2"]["relative_difference"] == [None, None, None]

@@ -5,7 +5,6 @@ here, at the edge; everything below is rad/s.
 """
 from __future__ import annotations
 
-import json
 import math
 
 from ..scene import RPM, SceneError, load_scene
@@ -43,13 +42,18 @@ def register(subparsers) -> None:
 
 
 def cmd_beam(args) -> int:
-    from ..cliutil import json_default
+    from ..cliutil import dumps
     scene = load_scene(args.scene, args.overrides)
+    if scene.clamped:
+        raise SceneError(f"beam: scene {scene.scene.name!r} clamps its flagellum ('clamp' in scene.effects: the "
+                         "head is held fixed), but the beam balance solves the free robot's head torque and drag "
+                         "balance for omega_h, omega_t and v_h; use a free-robot scene (design1, design2), or "
+                         "`flagbot run` for the clamped flagellum")
     params = BeamParams.from_scene(scene)
     rpms = parse_rpm_list(args.omega_rpm) if args.omega_rpm is not None else [scene.motor.omega_rpm]
     results = solve_balance_curve(params, [w * RPM for w in rpms], args.regime, raise_on_failure=False)
     if args.json:
-        print(json.dumps([r.to_dict() for r in results], default=json_default))
+        print(dumps([r.to_dict() for r in results]))            # strict JSON: a non-finite value is null
     else:
         print(format_table(scene.scene.name, params, args.regime, results))
     return 0 if all(r.converged for r in results) else 1

@@ -1,5 +1,6 @@
 """Benchmarks: `flagbot bench accuracy` (accuracy vs time study), `flagbot bench speed` (throughput) and
-`flagbot bench memory` (resident memory of hour-long runs).
+`flagbot bench memory` (resident memory of hour-long runs) and `flagbot bench startup` (start-up time of
+`flagbot run`, cold and warm, as whole processes).
 
 Registration imports nothing heavy: the simulator is loaded only when a benchmark actually runs.
 """
@@ -23,6 +24,13 @@ def speed_arguments(ap) -> None:
     ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
 
 
+def startup_arguments(ap) -> None:
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs of each kind (min / median / max reported)")
+    ap.add_argument("--scene", default="design1", help="scene to run (default design1)")
+    ap.add_argument("--no-cold", action="store_true", help="skip the cold runs (each compiles every kernel)")
+    ap.add_argument("--breakdown", action="store_true", help="also time the phases of a warm start in one process")
+
+
 def _run(module: str):
     def run(args):
         import importlib
@@ -31,7 +39,7 @@ def _run(module: str):
 
 
 def register(sub) -> None:
-    p = sub.add_parser("bench", help="benchmarks: accuracy vs time, throughput")
+    p = sub.add_parser("bench", help="benchmarks: accuracy vs time, throughput, start-up time")
     bsub = p.add_subparsers(dest="bench", required=True)
     a = bsub.add_parser("accuracy", help="error of the steady outputs vs wall time over a grid of dt x edge length")
     accuracy_arguments(a)
@@ -43,3 +51,7 @@ def register(sub) -> None:
     m.add_argument("--run-only", action="store_true", help="only the simulation (no ROS)")
     m.add_argument("--node-only", action="store_true", help="only sim_node")
     m.set_defaults(func=_run("memory"))
+    t = bsub.add_parser("startup", help="wall time of `flagbot run` as whole processes: cold (empty kernel cache) "
+                                        "and warm, min / median / max")
+    startup_arguments(t)
+    t.set_defaults(func=_run("startup"))

@@ -1,6 +1,7 @@
 """``flagbot sweep SCENE --grid KEY=VALUES ... --out DIR`` and ``flagbot sweep-plot DIR``."""
 from __future__ import annotations
 
+import math
 import signal
 import sys
 import time
@@ -76,10 +77,17 @@ def _frameworks(text: str) -> tuple[str, ...]:
 
 
 def _progress_text(res: dict) -> str:
+    """The last finished point for the progress line ('--' where a value is missing, never 'nan')."""
+    def num(x, spec, scale=1.0):
+        try:
+            x = scale * float(x)
+        except (TypeError, ValueError):
+            return "--"
+        return format(x, spec) if math.isfinite(x) else "--"
     der = next((r for r in res["rows"] if r["framework"] == "der"), res["rows"][0])
     state = "ERROR" if der["error"] else ("CAP" if der["hit_cap"] else "steady")
-    return (f"n={der['n']} L={1e3 * der['L']:g}mm {der['omega_T_rpm']:g}rpm {der['framework']}: "
-            f"v={1e3 * der['v']:.4f}mm/s {state} {der['wall_seconds']:.1f}s")
+    return (f"n={der['n']} L={num(der['L'], 'g', 1e3)}mm {num(der['omega_T_rpm'], 'g')}rpm {der['framework']}: "
+            f"v={num(der['v'], '.4f', 1e3)}mm/s {state} {num(der['wall_seconds'], '.1f')}s")
 
 
 def cmd_sweep(args) -> int:

@@ -4,21 +4,21 @@ Each ``figure_*`` function takes parsed CSV rows and returns a matplotlib ``Figu
 pyplot state), so tests can inspect its lines and labels before anything is saved:
 
 * ``figure_speed``: v_bar vs omega_T_bar per n, DER and beam (paper Fig. SpeedVSFlagellaNumber a/c/e), with the
-  crossover where the larger n overtakes the smaller (paper: C for DER, D for beam theory) and the point of
-  steepest slope of each DER curve (paper: E for n = 2, F for n = 3);
+  crossover where the larger n overtakes the smaller (paper: C for DER, D for beam theory, here D for NLB w/o
+  head and D' for NLB, each with a marker of its own) and the point of steepest slope of each DER curve (paper: E for n = 2, F for n = 3);
 * ``figure_head_spin``: omega_h_bar vs omega_T_bar and omega_h / omega_T (panels b/d);
 * ``figure_length``: v vs omega_T for every flagellum length and n, DER ("D") and beam ("B") with the paper's
-  labels such as D130n2 (Fig. SpeedVSFlagellaLengthandNumber);
+  labels such as D130n2 (Fig. SpeedVSFlagellaLengthandNumber), explained in the legend's title;
 * ``figure_deflection``: w(L)/L vs omega_T_bar for LB, NLB w/o head, NLB (Fig. comparison).
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from ..cliutil import dumps
 from .store import read_manifest, read_results
 from .task import FRAMEWORK_LABELS, FRAMEWORKS
 
@@ -32,6 +32,12 @@ SPEED_REGIMES = ("nlb-nohead", "nlb")
 LENGTH_REGIME = "nlb"
 STYLE = {"der": dict(ls="-", marker="o", ms=3.5), "nlb-nohead": dict(ls="--", marker=None),
          "nlb": dict(ls=":", marker=None), "lb": dict(ls="-.", marker=None)}
+#: the crossover mark of each framework: its letter (the paper's C for DER, D for its beam curves, NLB w/o head)
+#: and a marker of its own, so that no two different marks share a letter or a look
+CROSSOVER_MARKS = {"der": ("C", dict(marker="X", ms=11, mfc="gold")),
+                   "nlb-nohead": ("D", dict(marker="P", ms=11, mfc="lightskyblue")),
+                   "nlb": ("D'", dict(marker="h", ms=10, mfc="white")),
+                   "lb": ("D''", dict(marker="s", ms=8, mfc="lightgray"))}
 N_COLOURS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown"]
 
 
@@ -118,13 +124,13 @@ def _new_figure(ncols: int = 1, width: float = 6.4):
     return fig, axes
 
 
-def _finish(ax, xlabel: str, ylabel: str, title: str, **legend):
-    """Axis labels, title, grid and legend, the same on every figure."""
+def _finish(ax, xlabel: str, ylabel: str, title: str, legend: dict | None = None):
+    """Axis labels, title, grid and legend (``legend``: its keyword arguments), the same on every figure."""
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, **legend)
+    ax.legend(fontsize=7, **(legend or {}))
 
 
 def figure_speed(rows: list[dict], L: float | None = None, regimes=SPEED_REGIMES, title: str = ""):
@@ -140,12 +146,13 @@ def figure_speed(rows: list[dict], L: float | None = None, regimes=SPEED_REGIMES
     if pair:
         for fw in fws:
             xs, y_lo, y_hi = common(rows, fw, pair[0], fw, pair[1], L)
+            name, look = CROSSOVER_MARKS[fw]
             for xc in crossovers(xs, y_lo, y_hi):
                 yc = float(np.interp(xc, xs, y_hi))
-                name = "C" if fw == "der" else "D"
-                ax.plot([xc], [yc], ls="none", marker="X", ms=11, color="k", mfc="gold",
+                ax.plot([xc], [yc], ls="none", color="k", **look,
                         label=f"{name}: {FRAMEWORK_LABELS[fw]} crossover, n={pair[1]} overtakes n={pair[0]} "
                               f"at omega_T_bar={xc:.3g}")
+                ax.annotate(name, (xc, yc), textcoords="offset points", xytext=(6, -12))
     for n, name in zip(ns, "EFGHIJ"):
         st = steepest_slope(*curve(rows, "der", n, L))
         if st and st["interior"]:
@@ -179,7 +186,7 @@ def figure_head_spin(rows: list[dict], L: float | None = None, regimes=SPEED_REG
     ax2.set_title("share of the motor speed taken by the head")
     for a in (ax, ax2):
         a.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+        a.legend(fontsize=7)
     return fig
 
 
@@ -200,9 +207,12 @@ def figure_length(rows: list[dict], regime: str = LENGTH_REGIME, title: str = ""
                 if len(x):
                     ax.plot(x, 1e3 * y, ls=ls, color=colour, marker=markers[j % len(markers)] if fw == "der"
                             else None, ms=3.5, label=f"{letter}{1e3 * L:.0f}n{n}")
+    # the paper's labels, with their key: the first letter is the framework, then L in mm, then n
+    key = (f"D = DER, B = {FRAMEWORK_LABELS[regime]}; "
+           + (f"e.g. D{1e3 * Ls[0]:.0f}n{ns[0]}: DER, L = {1e3 * Ls[0]:.0f} mm, n = {ns[0]}" if Ls and ns else ""))
     _finish(ax, r"$\omega_T$ (rpm)", r"$v$ (mm/s)",
-            title or f"speed vs motor speed for several flagellum lengths (D: DER, B: {FRAMEWORK_LABELS[regime]})",
-            ncol=2)
+            title or "speed vs motor speed for several flagellum lengths",
+            legend=dict(ncol=2, title=key, title_fontsize=7))
     return fig
 
 
@@ -315,7 +325,7 @@ def make_all(directory: str | Path, dpi: int = 120) -> dict:
             path = directory / name
             fig.savefig(path, dpi=dpi)
             figures.append(str(path))
-    (directory / "summary.json").write_text(json.dumps(summary, indent=1))
+    (directory / "summary.json").write_text(dumps(summary, indent=1))     # strict JSON: NaN written as null
     return {"figures": figures, "summary": summary}
 
 
@@ -337,7 +347,7 @@ def format_summary(summary: dict) -> str:
             lines.append(f"    omega_h/omega_T {k:16s} {100 * s['min']:.1f}..{100 * s['max']:.1f}% "
                          f"(mean {100 * s['mean']:.1f}%)")
         for k, b in g["beam_vs_der"].items():
-            rel = [r for r in b["relative_difference"] if math.isfinite(r)]
+            rel = [r for r in b["relative_difference"] if r is not None and math.isfinite(r)]
             if not rel:
                 continue
             fw, n = k.split(" ")

@@ -17,6 +17,7 @@ import os
 import time
 from pathlib import Path
 
+from ..cliutil import dumps
 from .grid import Point, SweepError
 
 FORMAT = "flagbot_sim sweep 1"
@@ -38,7 +39,8 @@ def columns(grid_keys: list[str]) -> list[str]:
 
 
 def _jsonable(x):
-    return json.loads(json.dumps(x))
+    """``x`` as strict JSON gives it back (numpy values converted, NaN/Inf as None): what the manifest stores."""
+    return json.loads(dumps(x))
 
 
 def manifest_identity(scene_flat: dict, grid: dict, settings: dict, frameworks: list[str]) -> dict:
@@ -138,8 +140,8 @@ class SweepStore:
                 raise SweepError(f"{self.csv_path} exists but {manifest_path} does not: refusing to mix results; "
                                  "use another --out")
             tmp = manifest_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps({**identity, **_jsonable(extra), "columns": self.columns,
-                                       "created": time.time()}, indent=1))
+            tmp.write_text(dumps({**identity, **_jsonable(extra), "columns": self.columns,
+                                  "created": time.time()}, indent=1))
             os.replace(tmp, manifest_path)
             (self.dir / "scene.toml").write_text(scene_toml)
         self.done = self._load_done()
