@@ -29,13 +29,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
-from numba import njit
 
-from .frames import TrialFrames, twist_for_director, unit_rows
 from .network import RodNetwork
+
+if TYPE_CHECKING:
+    from .frames import TrialFrames
 
 _NO_DOFS = np.zeros(0, np.int64)
 
@@ -143,8 +144,7 @@ class Gravity(Effect):
 
 
 # ----------------------------------------------------------------------------------------------- RFT drag
-@njit(cache=True)
-def _rft(x, v, dv_dx, k, a, b, vor, eta_t, eta_p, dofs, r, J, s_kk, s_ka, s_kb, want_jacobian):
+def _rft_py(x, v, dv_dx, k, a, b, vor, eta_t, eta_p, dofs, r, J, s_kk, s_ka, s_kb, want_jacobian):
     """F_k = -l_k [eta_t (v.t) t + eta_p (v - (v.t) t)] into r (residual: -F); -dF/dx into J."""
     de = eta_t - eta_p
     tv = np.empty(3)
@@ -174,6 +174,19 @@ def _rft(x, v, dv_dx, k, a, b, vor, eta_t, eta_p, dofs, r, J, s_kk, s_ka, s_kb, 
                     acc += dft * ((1.0 if m == j else 0.0) - tv[m] * tv[j])
                 J[s_kb[n, i, j]] -= acc / chord
                 J[s_ka[n, i, j]] += acc / chord
+
+
+_RFT = None
+
+
+def rft_kernel():
+    """The compiled :func:`_rft_py`, compiled (or loaded from the cache) on first use: this module is imported
+    by the scene validator for the registry alone, which must not pull in numba."""
+    global _RFT
+    if _RFT is None:
+        from numba import njit
+        _RFT = njit(cache=True)(_rft_py)
+    return _RFT
 
 
 class RFTDrag(Effect):
@@ -213,7 +226,7 @@ class RFTDrag(Effect):
         self._s = [s.reshape(-1, 3, 3) for s in self.slots]
 
     def _run(self, x, v, dv_dx, r, J, want):
-        _rft(x, v, dv_dx, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, self.dof_k, r, J, *self._s, want)
+        rft_kernel()(x, v, dv_dx, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, self.dof_k, r, J, *self._s, want)
 
     def add_force(self, ctx, r):
         self._run(ctx.x, ctx.v, ctx.dv_dq, r, np.empty(0), False)
@@ -224,7 +237,7 @@ class RFTDrag(Effect):
     def node_forces(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(n, 3) RFT forces on the flagellum nodes ``self.k`` for positions x (N, 3) and DOF velocities v."""
         r = np.zeros(len(v))
-        _rft(x, v, 0.0, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, self.dof_k, r, np.empty(0),
+        rft_kernel()(x, v, 0.0, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, self.dof_k, r, np.empty(0),
              *([np.zeros((0, 3, 3), np.int64)] * 3), False)
         return -r[self.dof_k]
 
@@ -339,6 +352,7 @@ class Clamp(Driver):
         return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
     def prescribed_values(self, state, angle):
+        from .frames import twist_for_director, unit_rows
         R = self.rotation(angle)
         x = self.x0 @ R.T
         e = self._edge_local

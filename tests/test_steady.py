@@ -1,0 +1,135 @@
+"""The direct steady-state solver: the relative equilibrium of the same discrete model the time stepper runs.
+
+Its Jacobian is checked by finite differences; its answer against long time-stepped runs (second-order steps small
+enough that their own error is below 1e-4) and against the independent rod BVP; its stability verdict against the
+time-stepped dynamics; its failures are loud.
+"""
+import json
+
+import numpy as np
+import pytest
+
+from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.model import RobotModel
+from flagbot_sim.physics.steady import SteadyFailed, SteadySolver, summary
+from flagbot_sim.scene import load_scene
+
+from cli_helpers import flagbot
+from fd import fd_jacobian, rel_err
+
+SHORT_D2 = ["flagellum.length=0.04", "flagellum.edge_length=0.004"]       # design 2, fast relaxation
+D2_CLAMPED = ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03"]
+
+
+def bordered_point(scene, overrides, seed=0):
+    sc = load_scene(scene, overrides)
+    m = RobotModel(sc)
+    S = SteadySolver(m)
+    q, wt, _ = S.initial_guess(sc.omega_T)
+    rng = np.random.default_rng(seed)
+    q = q + 1e-4 * rng.standard_normal(len(q))           # off the equilibrium, nothing symmetric
+    committed = m.elastic.frames0.copy()
+    if S.clamped:
+        S._set_clamp(q, committed)
+    return sc, m, S, q, wt, 2e-5, committed
+
+
+@pytest.mark.parametrize("scene,overrides", [("design1", ["flagellum.length=0.03", "robot.n_flagella=3"]),
+                                             ("clamped_flagellum", ["flagellum.length=0.03",
+                                                                    "motor.omega_rpm=60"])])
+def test_steady_jacobian_matches_finite_differences(scene, overrides):
+    sc, m, S, q, wt, U, c = bordered_point(scene, overrides)
+    _, A, _ = S.system(q, c, sc.omega_T, wt, U)
+    ndof = m.ndof
+
+    def F(z):
+        w, u = (z[ndof], z[ndof + 1]) if not S.clamped else (wt, 0.0)
+        r, _, _ = S.residual(z[:ndof], c, sc.omega_T, w, u)
+        return r if S.clamped else np.concatenate([r, z[:ndof][S.gauge]])
+
+    z = q if S.clamped else np.concatenate([q, [wt, U]])
+    # omega_t and U in units where a step of 1e-7 is a small relative change
+    A_fd = fd_jacobian(F, z, 1e-7)
+    free = np.ones(len(z), bool)
+    free[S.fixed] = False
+    A = A.toarray()
+    assert rel_err(A[np.ix_(free, free)], A_fd[np.ix_(free, free)]) < 1e-6
+    if not S.clamped:      # the columns of the rigid-motion unknowns, alone
+        for j in (ndof, ndof + 1):
+            assert rel_err(A[:, j], A_fd[:, j]) < 1e-5, j
+
+
+@pytest.fixture(scope="module")
+def long_runs():
+    """Time-stepped runs from rest to a steady state with BDF2 at dt = 1e-3 s (omega dt = 0.01: its velocity
+    error (omega dt)^2 / 3 = 3.7e-5) and the steady solution of the same scene."""
+    out = {}
+    for key, scene, over in (("free", "design2", SHORT_D2), ("clamped", "clamped_flagellum",
+                                                             D2_CLAMPED + SHORT_D2 + ["motor.omega_rpm=100"])):
+        sc = load_scene(scene, over + ["time.integrator='bdf2'", "time.dt=1e-3", "observe.steady_rtol=1e-6",
+                                       "observe.steady_window=0.5"])
+        sim = Simulation(sc)
+        assert sim.run_until_steady(20.0), key
+        m = RobotModel(sc)
+        sol = SteadySolver(m).solve(sc.omega_T)
+        out[key] = (sim, sim.summary(), summary(m, sol))
+    return out
+
+
+def test_steady_state_equals_the_long_time_stepped_run(long_runs):
+    sim, ts, st = long_runs["free"]
+    for k in ("omega_h", "omega_t", "v"):
+        assert st[k] == pytest.approx(ts[k], rel=1e-4), k
+    assert st["omega_h"] + st["omega_t"] == pytest.approx(st["omega_T"], rel=1e-12)
+    sim, ts, st = long_runs["clamped"]
+    for k in ("Fx", "Tx"):
+        assert st[k] == pytest.approx(ts[k], rel=1e-4), k
+    # the tip, in the frame turning with the clamp (the steady solution is seen at drive angle 0)
+    assert np.linalg.norm(np.array(st["tip"]) - np.array(ts["tip"])) < 1e-4 * np.linalg.norm(st["tip"])
+
+
+def test_steady_state_converges_to_the_rod_bvp_as_edges_shrink():
+    """Design 1's clamped flagellum at 10 rpm against the geometrically exact rod (with the same centripetal
+    load): the error of the discrete model falls with the edge length."""
+    from flagbot_sim.reference.rod_bvp import from_scene
+    errs = []
+    for edge in (8.22e-3, 4.11e-3, 2.055e-3):
+        sc = load_scene("clamped_flagellum", [f"flagellum.edge_length={edge}"])
+        m = RobotModel(sc)
+        st = summary(m, SteadySolver(m).solve(sc.omega_T))
+        ref = from_scene(sc)
+        errs.append(max(abs(st["Fx"] / ref.Fx - 1), abs(st["Tx"] / ref.Tx - 1)))
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 3e-3
+
+
+def test_stability_agrees_with_the_time_stepped_dynamics(long_runs):
+    """The equilibrium the time-stepped run settled in is reported stable, and its slowest decay rate is of the
+    order of the run's own approach to it."""
+    sc = long_runs["free"][0].scene
+    m = RobotModel(sc)
+    S = SteadySolver(m)
+    st = S.stability(S.solve(sc.omega_T))
+    assert st.stable and st.rate < 0
+    assert st.neutral >= 1        # a sideways shift of the whole robot changes nothing: neutral
+
+
+def test_no_equilibrium_is_a_clear_failure():
+    sc = load_scene("design1")
+    S = SteadySolver(RobotModel(sc), max_iterations=1)
+    with pytest.raises(SteadyFailed, match="no relative equilibrium found beyond omega_T"):
+        S.solve(sc.omega_T)
+
+
+def test_flagbot_steady_prints_the_run_fields_plus_residual_and_stability():
+    res = flagbot("steady", "design1", "--set", "flagellum.length=0.05", "--omega-rpm", "50,100", "--json")
+    assert res.returncode == 0, res.stderr
+    rows = json.loads(res.stdout)
+    assert [round(r["omega_T"], 6) for r in rows] == [round(w * 2 * np.pi / 60, 6) for w in (50, 100)]
+    for r in rows:
+        assert {"omega_T", "omega_h", "omega_t", "v", "steady", "residual", "newton_iterations",
+                "stability", "motor_torque"} <= set(r)
+        assert r["steady"] and r["stability"]["stable"] and r["v"] > 0
+    assert len(rows[1]["continuation"]) >= 1
+    res = flagbot("steady", "clamped_flagellum", "--json")
+    out = json.loads(res.stdout)
+    assert res.returncode == 0 and out["Fx"] < 0 and out["Tx"] < 0 and len(out["tip"]) == 3
