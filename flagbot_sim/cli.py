@@ -25,6 +25,8 @@ _IMPORTED = time.perf_counter()
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
 COMMANDS: dict[str, tuple[str, str]] = {
+    "steady": ("flagbot_sim.steady_cli", "solve the steady state (relative equilibrium) directly, without time "
+                                         "stepping; with its stability"),
     "beam": ("flagbot_sim.beam.cli", "beam-theory estimate (LB / NLB w/o head / NLB) of omega_h, omega_t and "
                                      "speed for motor speeds omega_T"),
     "demo": ("flagbot_sim.ros.demo", "run sim_node + beam_node + a command profile and compare DER with beam "

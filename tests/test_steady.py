@@ -54,9 +54,14 @@ def test_steady_jacobian_matches_finite_differences(scene, overrides):
     free[S.fixed] = False
     A = A.toarray()
     assert rel_err(A[np.ix_(free, free)], A_fd[np.ix_(free, free)]) < 1e-6
-    if not S.clamped:      # the columns of the rigid-motion unknowns, alone
+    if not S.clamped:
+        # the columns of the rigid-motion unknowns, alone: R is quadratic in omega_t and linear in U, so central
+        # differences are exact for any step, and a larger one keeps round-off out of these small entries
         for j in (ndof, ndof + 1):
-            assert rel_err(A[:, j], A_fd[:, j]) < 1e-5, j
+            e = np.zeros(len(z))
+            e[j] = 1e-3
+            col = (F(z + e) - F(z - e)) / 2e-3
+            assert rel_err(A[:, j], col) < 1e-8, j
 
 
 @pytest.fixture(scope="module")
