@@ -1,12 +1,14 @@
 """Helpers for tests that talk to flagbot nodes running in other processes over real DDS (localhost only).
 
-conftest.py has already set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, a ROS_DOMAIN_ID of this test process and
-ROS_LOG_DIR; child processes inherit them unchanged (the rclpy wheels need the parent's environment).
+conftest.py has already set the loopback-only DDS environment (flagbot_sim/ros/dds.py on top of
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), a ROS_DOMAIN_ID of this test process and ROS_LOG_DIR; child processes
+inherit them unchanged (the rclpy wheels need the parent's environment).
 """
 from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -17,6 +19,8 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+
+from flagbot_sim.ros.dds import loopback_only
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DISCOVERY_TIMEOUT = 20.0
@@ -29,12 +33,16 @@ class ChildProcess:
 
     def __init__(self, *argv: str):
         env = dict(os.environ)
-        assert env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST", "conftest.py keeps DDS on this machine"
+        assert loopback_only(env), "conftest.py keeps DDS on this machine"
         assert env.get("ROS_DOMAIN_ID")
         env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
         self.log = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen([sys.executable, *argv], env=env, stdout=self.log, stderr=subprocess.STDOUT,
                                      cwd=ROOT)
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -115,3 +123,37 @@ def describe_all_params(node: Node, target: str) -> dict:
         node.destroy_client(lst)
         node.destroy_client(desc)
     return {d.name: d for d in ds}
+
+
+def _address(hex_addr: str, v6: bool) -> tuple[str, int]:
+    ip, port = hex_addr.split(":")
+    raw = bytes.fromhex(ip)
+    if v6:      # four host-order 32-bit words
+        return socket.inet_ntop(socket.AF_INET6, b"".join(raw[i:i + 4][::-1] for i in range(0, 16, 4))), int(port, 16)
+    return socket.inet_ntop(socket.AF_INET, raw[::-1]), int(port, 16)
+
+
+def inet_sockets(pid: int | str = "self") -> list[tuple[str, str, int]]:
+    """(protocol, local address, port) of every UDP/TCP socket process ``pid`` holds: its /proc/PID/fd socket
+    inodes matched in /proc/PID/net/{udp,udp6,tcp,tcp6}."""
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:         # closed meanwhile
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    out = []
+    for proto in ("udp", "udp6", "tcp", "tcp6"):
+        with open(f"/proc/{pid}/net/{proto}") as f:
+            for line in f.read().splitlines()[1:]:
+                fields = line.split()
+                if fields[9] in inodes:
+                    out.append((proto, *_address(fields[1], proto.endswith("6"))))
+    return out
+
+
+def is_loopback(address: str) -> bool:
+    """127.0.0.0/8, ::1 or an IPv4-mapped 127.x; the wildcard 0.0.0.0 / :: is NOT loopback (every interface)."""
+    return address.startswith("127.") or address == "::1" or address.startswith("::ffff:127.")

@@ -5,6 +5,9 @@ inside a callback that is publishing; under load that race crashed sim_node with
 (seen once in ~70 signal-shutdown runs). So processes here take the signals themselves: the handler only
 raises a flag, the spin loop notices it within one wait slice and tears down in order on the main thread.
 A second signal falls through to the default action, so a hung teardown can still be interrupted.
+
+Before rclpy.init, :func:`flagbot_sim.ros.dds.configure_dds` keeps DDS on the loopback interface unless the user
+opted in (see that module).
 """
 from __future__ import annotations
 
@@ -19,6 +22,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
+
+from .dds import configure_dds
 
 SLICE = 0.1     # s: longest wait before a stop request is noticed
 
@@ -82,6 +87,7 @@ def ros_process(args: list[str] | None) -> Iterator[StopRequest]:
     The body tears its own nodes down; the context is shut down on exit.
     """
     stop = StopRequest()
+    configure_dds()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop.install()
     try:
@@ -102,8 +108,18 @@ def wants_help(argv: list[str]) -> bool:
     return "-h" in user or "--help" in user
 
 
+def one_line(text: str, limit: int = 300) -> str:
+    """``text`` on one line, at most ``limit`` characters (an error message that echoes a huge value stays short)."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def run_node(make_node: Callable[[], object], argv: list[str] | None = None) -> int:
-    """Create the node, spin it until SIGINT/SIGTERM or rclpy shutdown, then tear everything down in order."""
+    """Create the node, spin it until SIGINT/SIGTERM or rclpy shutdown, then tear everything down in order.
+
+    Exit code: 2 when the node cannot start (one line on stderr, no traceback), else what the node's ``close()``
+    returns (an int; e.g. sim_node says 1 when a recording failed to write), else 0.
+    """
     argv = sys.argv if argv is None else argv
     code = 0
     with ros_process(argv) as stop:
@@ -120,11 +136,13 @@ def run_node(make_node: Callable[[], object], argv: list[str] | None = None) -> 
             # a node that shut the context down from a callback (cmd_profile --exit-at-end) ends the loop
             # normally; anything else (a bad parameter, a bad scene at startup) is one line, not a traceback
             if rclpy.ok():
-                print(f"error: {exc}", file=sys.stderr)
+                print(f"error: {one_line(str(exc) or type(exc).__name__)}", file=sys.stderr)
                 code = 2
         finally:
             close = getattr(node, "close", None)
             if close is not None:
-                close()
+                status = close()
+                if isinstance(status, int) and status and not code:
+                    code = status
             release(executor, node)
     return code
