@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Set up the virtual environment and run the project's jobs with nothing but Python (3.10-3.13) and pip.
+"""Set up the virtual environment and run the project's jobs with nothing but Python (3.11-3.13) and pip.
 
     python3 dev.py run      # create .venv if needed, install, run the main job (flagbot demo: ROS nodes)
     python3 dev.py test     # create .venv if needed, install, run the test suite (extra args go to pytest)
@@ -40,8 +40,10 @@ def sh(*cmd: str | os.PathLike) -> None:
 
 
 def setup() -> None:
-    if not ((3, 10) <= sys.version_info[:2] <= (3, 13)):
-        sys.exit(f"dev.py: ROS 2 Jazzy wheels exist for CPython 3.10-3.13; this is {platform.python_version()}")
+    if not ((3, 11) <= sys.version_info[:2] <= (3, 13)):
+        # 3.11: the scene files are read with tomllib; 3.13: the newest the ROS 2 Jazzy wheels exist for
+        sys.exit(f"dev.py: flagbot_sim needs CPython 3.11-3.13 (ROS 2 Jazzy wheels: 3.10-3.13, tomllib: 3.11+); "
+                 f"this is {platform.python_version()}")
     if platform.machine() not in ("x86_64", "AMD64"):
         sys.exit(f"dev.py: ROS 2 Jazzy wheels exist for x86_64 only; this machine is {platform.machine()}")
     if not PY.exists():

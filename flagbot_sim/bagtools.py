@@ -10,78 +10,16 @@ seconds even when the simulator ran faster or slower than real time.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of, recover
+from .cliutil import dumps
+from .ros.bag_args import add_record_arguments, add_replay_arguments, fail as _fail  # ROS-free: no rclpy import
 from .topics import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
 
 RPM = 2.0 * math.pi / 60.0
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# arguments (shared with the console scripts in flagbot_sim.ros.recorder / .replay)
-
-
-def add_record_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("topics", nargs="*", help="topics to record (relative names follow --namespace); default: every "
-                                             "flagbot topic (flagbot_sim.topics.DEFAULT_RECORD_TOPICS)")
-    p.add_argument("-o", "--output", help="output .mcap file (default: flagbot_YYYYmmdd_HHMMSS.mcap)")
-    p.add_argument("-a", "--all", action="store_true", help="record every topic currently or later visible")
-    p.add_argument("--exclude", action="append", metavar="REGEX", help="do not record topics matching REGEX")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    p.add_argument("--scene", help="scene (built-in name or .toml) to store in the file's metadata")
-    p.add_argument("--params-from", metavar="NODE", help="store all parameters of this node (e.g. /sim_node), and "
-                                                         "the text of the scene its `scene` parameter names")
-    p.add_argument("--metadata", action="append", metavar="KEY=VALUE", help="extra metadata to store")
-    p.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd", help="chunk compression")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
-    p.add_argument("--namespace", default="", help="namespace of the recorder node (relative topics resolve in it)")
-    p.add_argument("--node-name", default="flagbot_recorder")
-
-
-def add_replay_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("bag", help="MCAP file (or a rosbag2 directory holding one)")
-    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (2 = twice as fast)")
-    p.add_argument("--loop", action="store_true", help="start again at the end until interrupted")
-    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="replay only these topics (names or regexes)")
-    p.add_argument("--exclude", nargs="+", metavar="TOPIC", help="do not replay these topics (names or regexes)")
-    p.add_argument("--start-offset", type=float, default=0.0, metavar="S",
-                   help="start this many seconds after the first message")
-    p.add_argument("--no-clock", action="store_true",
-                   help="do not publish a /clock derived from log time when the recording has no /clock")
-    p.add_argument("--clock-rate", type=float, default=100.0, metavar="HZ", help="rate of the derived /clock")
-    p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
-                   help="before starting, wait up to S seconds until every replayed topic has a subscriber")
-    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="sleep S seconds before starting")
-    p.add_argument("--namespace", default="")
-    p.add_argument("--node-name", default="flagbot_replay")
-    p.add_argument("--resimulate", action="store_true",
-                   help="no ROS: feed the recorded commands to a fresh simulator with the recorded scene and report "
-                        "the largest difference in pose, omega_h and omega_t against the recording")
-    p.add_argument("--json", action="store_true", help="with --resimulate: print the report as JSON")
-
-
-def console_main(prog: str, description: str, add_arguments, run, argv: list[str] | None) -> int:
-    """The ``record`` / ``replay`` console scripts: argparse on the non-ROS arguments, ROS arguments passed on."""
-    from rclpy.utilities import remove_ros_args
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog=prog, description=description)
-    add_arguments(parser)
-    args = parser.parse_args(remove_ros_args([prog] + argv)[1:])
-    try:
-        return run(args, ros_args=[prog] + argv)
-    except BagError as exc:
-        return _fail(exc)
-
-
-def _fail(exc: Exception) -> int:
-    print(f"error: {exc}", file=sys.stderr)
-    return 2
 
 
 def cmd_record(args) -> int:
@@ -92,31 +30,16 @@ def cmd_record(args) -> int:
         return _fail(exc)
 
 
-def cmd_replay(args, ros_args: list[str] | None = None) -> int:
-    """``flagbot replay`` and the ``replay`` console script: a ROS replay, or with ``--resimulate`` none."""
+def cmd_replay(args) -> int:
+    """``flagbot replay``: a ROS replay, or with ``--resimulate`` a re-simulation (no ROS: rclpy is not loaded)."""
     if args.resimulate:
+        from .resim import cmd_resimulate
         return cmd_resimulate(args)
     try:
         from .ros.replay import run
-        return run(args, ros_args=ros_args or ["replay"])
+        return run(args, ros_args=["replay"])
     except BagError as exc:
         return _fail(exc)
-
-
-def cmd_resimulate(args) -> int:
-    from .progress import ProgressBar
-    from .resim import ResimulationError, format_report, resimulate
-    try:
-        bar = ProgressBar(100.0, label="re-simulating", unit="%", enabled=not args.json)
-        res = resimulate(args.bag, args.namespace or None, progress=lambda f: bar.update(100.0 * f))
-        bar.close()
-    except (BagError, ResimulationError) as exc:
-        return _fail(exc)
-    if args.json:
-        print(json.dumps({"bag": str(args.bag), **res.to_dict()}))
-    else:
-        print(format_report(res, args.bag))
-    return 0
 
 
 def cmd_recover(args) -> int:
@@ -186,6 +109,9 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
         raise BagError(f"--tail must be in (0, 1], got {tail}")
     with BagReader(path) as r:
         rep = r.report
+        if rep.messages == 0:      # nothing to summarise: say so, never an empty table that looks like success
+            raise BagError(f"nothing recoverable: {rep.describe_loss()}" if not rep.ok else
+                           f"{r.path}: the recording holds no message: nothing to summarise")
         meta = r.run_metadata()
         topics = r.topics
         cmd_topic = find_topic(topics, CMD_OMEGA, namespace)
@@ -292,12 +218,15 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_summary(s: dict, out: str | Path) -> None:
-    """PNG of v, omega_h, omega_t over time, with the step boundaries and the steady windows."""
+def summary_figure(s: dict):
+    """v, omega_h, omega_t over time, with the step boundaries and the steady windows, and a legend saying what
+    the shaded windows and the lines in them are (a matplotlib Figure; the caller closes it)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 7.5))
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 8.0))
     panels = [("speed", 1e3, "v (mm/s)"), ("omega_h", 1.0, "omega_h (rad/s)"), ("omega_t", 1.0, "omega_t (rad/s)")]
     keys = {"speed": "v", "omega_h": "omega_h", "omega_t": "omega_t"}
     for ax, (name, scale, label) in zip(axes, panels):
@@ -320,13 +249,28 @@ def plot_summary(s: dict, out: str | Path) -> None:
                              xycoords=("data", "axes fraction"), fontsize=8, va="bottom")
     axes[-1].set_xlabel(f"{s['time_axis']} time (s)")
     fig.suptitle(Path(s["path"]).name, y=0.995)
-    fig.tight_layout()
+    handles = [Line2D([], [], color="C0", lw=1.0),
+               Patch(facecolor="C1", alpha=0.12),
+               Line2D([], [], color="C1", lw=2),
+               Line2D([], [], color="0.6", ls=":", lw=0.8)]
+    labels = ["recorded value",
+              f"steady window: the last {100 * s['tail']:.0f} % of each omega_T step",
+              "steady value: mean over the window",
+              "omega_T step (new command)"]
+    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return fig
+
+
+def plot_summary(s: dict, out: str | Path) -> None:
+    """PNG of :func:`summary_figure`."""
+    import matplotlib.pyplot as plt
+    fig = summary_figure(s)
     fig.savefig(out, dpi=110)
     plt.close(fig)
 
 
 def cmd_summary(args) -> int:
-    from .cliutil import json_default
     try:
         s = summarize(args.bag, namespace=args.namespace, tail=args.tail, time_axis=args.time)
     except BagError as exc:
@@ -336,7 +280,7 @@ def cmd_summary(args) -> int:
     if args.json:
         s = dict(s)
         s.pop("series")
-        print(json.dumps(s, default=json_default))
+        print(dumps(s))
     else:
         print(format_summary(s))
         if args.plot:

@@ -126,3 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     except SceneError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as exc:      # record, replay, demo without ROS 2: one line naming the [ros] extra
+        from .optional import missing_ros
+        if (missing := missing_ros(exc, f"flagbot {args.command}")) is None:
+            raise
+        print(f"error: {missing}", file=sys.stderr)
+        return 1

@@ -9,20 +9,34 @@ which the new command took effect exactly:
 
 so the re-simulation applies every command at the same step as the original run and should reproduce it to
 round-off. Pose (``head_pose``), omega_h and omega_t (``joint_states``) are compared at every recorded stamp.
+
+Verdict: the run is reproduced when the largest differences stay within :data:`POSITION_TOLERANCE` and
+:data:`RATE_TOLERANCE`. With the version that recorded it the difference is exactly 0; a later solver (another
+predictor, linear solver or build) stops its Newton iterations elsewhere inside the force tolerance
+(``numerics.force_tol``, 1e-7 of EI/L^2), which moves the head by ~1e-11 m and the per-step spin rates (a
+displacement difference divided by dt) by ~1e-7 rad/s, measured on the sample recordings in bags/. The
+tolerances leave a factor of ~50-500 over that; a different command stream, scene or physics shows up orders of
+magnitude above them (1 % more medium viscosity: 6e-3 rad/s in omega_h within 3 s, tests/test_replay_cli.py).
 """
 from __future__ import annotations
 
 import math
+import sys
 import tomllib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import world
-from .bag import BagReader, find_topic
+from .bag import BagError, BagReader, find_topic
 from .physics import Simulation
 from .topics import HEAD_POSE, JOINT_STATES
 from .scene import SceneError, node_overrides, scene_from_dict
+
+#: largest head position difference (m) still counted as the same motion: Newton's tolerance, see above
+POSITION_TOLERANCE = 1e-8
+#: largest omega_h / omega_t difference (rad/s) still counted as the same motion
+RATE_TOLERANCE = 1e-5
 
 
 class ResimulationError(ValueError):
@@ -39,8 +53,30 @@ class Resimulation:
     max_omega_t_error: float            # rad/s
     notes: list = field(default_factory=list)
 
+    @property
+    def reproduced(self) -> bool:
+        """True when the motion matches the recording within the solver tolerance (and anything was compared)."""
+        return (self.samples > 0 and self.max_position_error <= POSITION_TOLERANCE
+                and max(self.max_omega_h_error, self.max_omega_t_error) <= RATE_TOLERANCE)
+
+    def verdict(self) -> str:
+        """One line: reproduced or not, and by how much against the tolerance."""
+        tol = f"tolerance {POSITION_TOLERANCE:.0e} m in head position, {RATE_TOLERANCE:.0e} rad/s in omega_h/omega_t"
+        if self.samples == 0:
+            return f"verdict: NOT CHECKED: no recorded sample could be compared ({tol})"
+        if self.reproduced:
+            return f"verdict: REPRODUCED: the re-simulated motion matches the recording within the {tol}"
+        over = []
+        if self.max_position_error > POSITION_TOLERANCE:
+            over.append(f"head position by {self.max_position_error:.3e} m")
+        for name, err in (("omega_h", self.max_omega_h_error), ("omega_t", self.max_omega_t_error)):
+            if err > RATE_TOLERANCE:
+                over.append(f"{name} by {err:.3e} rad/s")
+        return f"verdict: DIFFERS: {', '.join(over)}, beyond the {tol}"
+
     def to_dict(self) -> dict:
-        return dict(self.__dict__)
+        return dict(self.__dict__, reproduced=self.reproduced, verdict=self.verdict(),
+                    tolerance={"position_m": POSITION_TOLERANCE, "rate_rad_s": RATE_TOLERANCE})
 
 
 def _stamp(m) -> float:
@@ -168,4 +204,24 @@ def format_report(res: Resimulation, path) -> str:
     lines += [f"  largest difference from the recording: head position {res.max_position_error:.3e} m, "
               f"omega_h {res.max_omega_h_error:.3e} rad/s, omega_t {res.max_omega_t_error:.3e} rad/s"]
     lines += [f"  note: {n}" for n in res.notes]
+    lines.append(res.verdict())
     return "\n".join(lines)
+
+
+def cmd_resimulate(args) -> int:
+    """``flagbot replay --resimulate BAG [--json] [--namespace NS]``: the report and its verdict; exit 0 when the
+    recording is reproduced, 1 when it is not, 2 when it cannot be re-simulated."""
+    from .cliutil import dumps
+    from .progress import ProgressBar
+    try:
+        bar = ProgressBar(100.0, label="re-simulating", unit="%", enabled=not args.json)
+        res = resimulate(args.bag, args.namespace or None, progress=lambda f: bar.update(100.0 * f))
+        bar.close()
+    except (BagError, ResimulationError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(dumps({"bag": str(args.bag), **res.to_dict()}))
+    else:
+        print(format_report(res, args.bag))
+    return 0 if res.reproduced else 1

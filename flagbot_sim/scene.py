@@ -18,20 +18,15 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .physics.effects import EFFECT_TYPES
+
 RPM = 2.0 * math.pi / 60.0  # rad/s per rpm
 
-#: Effects a scene may list, with what each one adds to the model.
-EFFECTS: dict[str, str] = {
-    "inertia": "lumped mass of every node and rotational inertia of every edge (density from the scene)",
-    "rft": "resistive-force-theory drag of the medium on the flagella (eta_t, eta_p from mu, L, r0)",
-    "head_drag": "Stokes drag on the head, -C1*6*pi*mu*R_h*v_h",
-    "head_torque": "Stokes torque on the head spin, -C2*8*pi*mu*R_h^3*omega_h",
-    "motor": "motor at the head centre: natural twist of the head/shaft hinge advanced by omega_T*dt",
-    "clamp": "flagellum base clamped to a plate driven about the axis at omega (no head; the paper's "
-             "'clamped flagellum fixed in space')",
-    "gravity": "weight of every node, m*g",
-}
-HEAD_EFFECTS = ("head_drag", "head_torque", "motor")
+#: Effects a scene may list, with what each one adds to the model: the physics' one registry (an effect is one
+#: class in physics.effects, plus its constants' keys in a section here)
+EFFECTS: dict[str, str] = {name: cls.description for name, cls in EFFECT_TYPES.items()}
+#: effects that need the head (the clamped scene holds it fixed)
+HEAD_EFFECTS = tuple(name for name, cls in EFFECT_TYPES.items() if cls.on_head)
 
 
 class SceneError(ValueError):

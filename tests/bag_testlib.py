@@ -13,6 +13,15 @@ Run as a script it is a small ROS node for the tests' other processes:
         a use_sim_time node: for each Float64 received, [data, node clock (sim time) ns, wall time ns]
     python tests/bag_testlib.py selfrecord --ns /t --count 10 --out out.mcap
         a node that records its own topic with an in-process flagbot_sim.ros.recorder.Recorder
+    python tests/bag_testlib.py clocklog --topic /clock --log out.txt
+        subscribes to rosgraph_msgs/Clock on --topic until SIGINT/SIGTERM; logs "sim_ns wall_ns" per message
+    python tests/bag_testlib.py openfail --out PATH [--out PATH ...]
+        tries Recorder(node, PATH, None, RunMetadata(...)) for each PATH; prints one JSON line per PATH: what was
+        raised, whether a file was left behind, how many subscriptions the node has afterwards
+    python tests/bag_testlib.py fullself --ns /t --out out.mcap
+        (run it under a file size limit, see `limited`) a node recording its own 1 kHz topic until the recorder
+        reports a write error, then publishing on for a while; prints JSON: the error as first seen, as seen later
+        and as close() reports it, and the messages written before and after
 
 Message content is a pure function of (topic, round) — :func:`make_message` — so a test can rebuild what was
 published and compare it, decoded, with what a reader decodes. Values are exactly representable in float32 and
@@ -170,6 +179,46 @@ def start_helper(*args: str) -> ChildProcess:
     return ChildProcess(os.path.abspath(__file__), *args)
 
 
+class LimitedProcess(ChildProcess):
+    """``python ARGV`` in a child process that cannot write files beyond ``fsize`` bytes: a full disk as that
+    process sees it (RLIMIT_FSIZE set by preexec_fn: writes past the limit fail with EFBIG, since CPython ignores
+    SIGXFSZ and the ignore survives exec). Its output goes through a pipe, which the limit does not cover. (Fast
+    DDS cannot create its shared-memory segments under the limit, says so, and talks over loopback UDP.)"""
+
+    def __init__(self, fsize: int, *argv: str):
+        import resource
+        import subprocess
+        import sys
+        import threading
+        env = dict(os.environ)
+        from flagbot_sim.ros.dds import loopback_only
+        assert loopback_only(env), "conftest.py keeps DDS on this machine"
+        assert env.get("ROS_DOMAIN_ID")
+        env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+        self._chunks: list[bytes] = []
+
+        def limit():
+            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+
+        self.proc = subprocess.Popen([sys.executable, *argv], env=env, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, cwd=ROOT, preexec_fn=limit)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for chunk in iter(lambda: self.proc.stdout.read1(65536), b""):
+            self._chunks.append(chunk)
+
+    def output(self) -> str:
+        if self.proc.poll() is not None:
+            self._reader.join(timeout=5.0)
+        return b"".join(self._chunks).decode(errors="replace")
+
+
+def limited(fsize: int, *argv: str) -> LimitedProcess:
+    return LimitedProcess(fsize, *argv)
+
+
 def wait_for(predicate, timeout: float, what: str, proc: ChildProcess | None = None):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -193,6 +242,44 @@ def bag_messages(path: str) -> int:
             return r.report.messages
     except BagError:
         return 0
+
+
+@dataclasses.dataclass
+class RunRecord:
+    """A recorded run reduced to what a command-driven re-simulation needs: the run metadata (scene, parameters,
+    version) and the command stream. Times in seconds: ``t`` = log (receive) time since the first message of the
+    bag, ``sim_t`` = simulation time from the recorded /clock at that moment (None without /clock)."""
+    path: str
+    metadata: object                                     # flagbot_sim.bag.RunMetadata or None
+    start_ns: int | None
+    cmd_omega: list[tuple[float, float | None, float]]  # (t, sim_t, omega_T rad/s)
+    report: object                                       # flagbot_sim.bag.ScanReport
+
+    @property
+    def scene_toml(self) -> str:
+        return self.metadata.scene_toml if self.metadata else ""
+
+    @property
+    def parameters(self) -> dict:
+        return self.metadata.parameters if self.metadata else {}
+
+
+def read_run(path, namespace: str | None = None) -> RunRecord:
+    """Scene, parameters and the decoded ``cmd_omega`` stream with log and simulation times, put together from
+    the bag package's parts (run metadata, topic lookup by relative name, one-pass decoding, /clock mapping)."""
+    from flagbot_sim.bag import BagReader, SimTimeMap, find_topic
+    from flagbot_sim.topics import CLOCK, CMD_OMEGA
+    with BagReader(path) as r:
+        rep = r.report
+        meta = r.run_metadata()
+        cmds = []
+        topic = find_topic(r.topics, CMD_OMEGA, namespace)
+        if topic is not None:
+            rows = r.decoded_many([topic, CLOCK])
+            smap = SimTimeMap.from_rows(rows[CLOCK])
+            for lt, _, m in rows[topic]:
+                cmds.append(((lt - rep.start_ns) * 1e-9, float(smap(lt)) if smap else None, float(m.data)))
+        return RunRecord(str(r.path), meta, rep.start_ns, cmds, rep)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -327,9 +414,77 @@ def _selfrecord(node, args):
     return ex
 
 
+def _clocklog(node, args):
+    """What a simulator published: every /clock received, with its wall receive time (line-buffered log, so a
+    test can read it while this runs)."""
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+    log = open(args.log, "w", buffering=1)
+    node.create_subscription(
+        Clock, args.topic, lambda m: log.write(f"{m.clock.sec * 1_000_000_000 + m.clock.nanosec} {time.time_ns()}\n"),
+        100)
+    print("clocklog ready", flush=True)
+    while rclpy.ok():
+        rclpy.spin_once(node, timeout_sec=0.05)
+
+
+def _openfail(node, args):
+    """Recorder's promise when the target cannot be written: an OSError (and BagError) from the constructor, no
+    file left behind, no ROS entity created."""
+    from flagbot_sim.bag import BagError, RunMetadata
+    from flagbot_sim.ros.recorder import Recorder
+    for path in args.out:
+        subs = len(list(node.subscriptions)) + len(list(node.timers))
+        got = {"path": path}
+        try:
+            rec = Recorder(node, path, None, RunMetadata(scene_toml="[robot]\n" + "# padding\n" * 50))
+            got["raised"] = None
+            rec.close()
+        except Exception as exc:         # noqa: BLE001 - the test wants to see whatever it is
+            got.update(raised=type(exc).__name__, oserror=isinstance(exc, OSError), bagerror=isinstance(exc, BagError),
+                       message=str(exc))
+        target = path if path.endswith(".mcap") else path + ".mcap"
+        got["left_behind"] = os.path.exists(target)
+        got["new_entities"] = len(list(node.subscriptions)) + len(list(node.timers)) - subs
+        print(json.dumps(got), flush=True)
+
+
+def _fullself(node, args):
+    """A node recording its own topic (the sim_node's use of Recorder) when the disk fills up."""
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Float64
+
+    from flagbot_sim.bag import RunMetadata
+    from flagbot_sim.ros.recorder import Recorder
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    pub = node.create_publisher(Float64, "speed", 100)
+    rec = Recorder(node, args.out, ["speed"], RunMetadata(parameters={"test": "fullself"}))
+    out = {"error_at_start": rec.error}
+    k, end = 0, time.monotonic() + 60.0
+    while not rec.error:
+        if time.monotonic() > end:
+            raise SystemExit("the recorder never reported a write error")
+        pub.publish(Float64(data=float(k)))
+        k += 1
+        ex.spin_once(timeout_sec=0.001)
+    out.update(first_error=rec.error, written_at_error=rec.writer.message_count, published_at_error=k)
+    later = time.monotonic() + 1.0
+    while time.monotonic() < later:          # the recorder keeps receiving: nothing more may be written
+        pub.publish(Float64(data=float(k)))
+        k += 1
+        ex.spin_once(timeout_sec=0.001)
+    out.update(later_error=rec.error, written_later=rec.writer.message_count, published=k)
+    summary = rec.close()
+    out.update(summary_error=summary.error, summary_closed=summary.closed, summary_messages=summary.messages)
+    print("RESULT " + json.dumps(out), flush=True)
+    return ex
+
+
 def main(argv=None):
     p = argparse.ArgumentParser()
-    p.add_argument("mode", choices=["publish", "stream", "latched", "clockwatch", "selfrecord"])
+    p.add_argument("mode", choices=["publish", "stream", "latched", "clockwatch", "selfrecord", "clocklog", "openfail",
+                                    "fullself"])
     p.add_argument("--ns", default="/t")
     p.add_argument("--rounds", type=int, default=20)
     p.add_argument("--rate", type=float, default=20.0)
@@ -338,10 +493,12 @@ def main(argv=None):
     p.add_argument("--topic2", default="/t/best_effort")
     p.add_argument("--count", type=int, default=20)
     p.add_argument("--timeout", type=float, default=30.0)
-    p.add_argument("--out", default=os.devnull)
+    p.add_argument("--out", default=None, action="append")
     args = p.parse_args(argv)
     fn = {"publish": _publish, "stream": _stream, "latched": _latched, "clockwatch": _clockwatch,
-          "selfrecord": _selfrecord}[args.mode]
+          "selfrecord": _selfrecord, "clocklog": _clocklog, "openfail": _openfail, "fullself": _fullself}[args.mode]
+    if args.mode != "openfail":
+        args.out = args.out[-1] if args.out else os.devnull
     _node_main(fn, args)
 
 

@@ -42,7 +42,8 @@ def ros(request):
 
 @pytest.fixture(scope="session")
 def clamped_design2():
-    """``run(rpm) -> (scene, summary)``: design 2's clamped flagellum at ``rpm`` after 4 s of simulated time.
+    """``run(rpm) -> (scene, summary)``: design 2's clamped flagellum at ``rpm``, run to the steady-state rule
+    (at most 20 s of simulated time).
 
     Each rpm is simulated once per session; the scene and summary are shared, so callers must not mutate them.
     """
@@ -55,7 +56,7 @@ def clamped_design2():
         if rpm not in cache:
             sc = load_scene("clamped_flagellum", [*DESIGN2_CLAMPED, f"motor.omega_rpm={rpm}"])
             sim = Simulation(sc)
-            sim.run(4.0)
+            sim.run_until_steady(20.0)
             cache[rpm] = (sc, sim.summary())
         return cache[rpm]
     return run

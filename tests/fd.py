@@ -24,31 +24,42 @@ def rel_err(a, b):
     return np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300)
 
 
-def dense_elastic_hessian(el, q, frames):
-    """The elastic energy's Hessian at q as a dense matrix: the stretch and hinge blocks scattered into place.
+def elastic_gradient(el, q, frames, twist_hinge=-1, twist_offset=0.0):
+    """The elastic energy's gradient at q, from the compiled springs that the simulator runs."""
+    g = np.zeros(el.net.ndof)
+    el.accumulate(q, frames, g, None, twist_hinge, twist_offset)
+    return g
+
+
+def dense_elastic_hessian(el, q, frames, twist_hinge=-1, twist_offset=0.0):
+    """The elastic energy's Hessian at q as a dense matrix, from the compiled springs that the simulator runs
+    (scattered into a CSC pattern of their own blocks, then densified).
 
     ``frames`` are the trial frames at q (``el.trial_frames(q, committed)``).
     """
-    _, hs = el.stretch_terms(frames, True)
-    _, hh = el.hinge_terms(q, frames, True)
-    H = np.zeros((el.net.ndof, el.net.ndof))
-    for k in range(len(hs)):
-        H[np.ix_(el.stretch_dofs[k], el.stretch_dofs[k])] += hs[k]
-    for k in range(len(hh)):
-        H[np.ix_(el.hinge_dofs[k], el.hinge_dofs[k])] += hh[k]
-    return H
+    from flagbot_sim.physics.assembly import SparsePattern
+    pattern = SparsePattern(el.net.ndof, [(el.stretch_dofs, el.stretch_dofs), (el.hinge_dofs, el.hinge_dofs)])
+    saved = el.stretch_slots, el.hinge_slots
+    el.set_slots(pattern.slots[0], pattern.slots[1])
+    try:
+        J = np.zeros(pattern.nnz)
+        el.accumulate(q, frames, np.zeros(el.net.ndof), J, twist_hinge, twist_offset)
+    finally:
+        el.stretch_slots, el.hinge_slots = saved
+    return pattern.matrix(J).toarray()
 
 
 def newton_point(sim, noise_seed=None):
-    """A point where the stepper would evaluate the residual next: the drivers have begun the step, and
-    q = q_n + dt v_n (plus 1e-5 Gaussian noise from ``noise_seed``, if given, so that nothing is symmetric).
+    """A point where the stepper would evaluate the residual next: the step of size dt is planned (drive angle
+    advanced), and q = q_n + dt v_n (plus 1e-5 Gaussian noise from ``noise_seed``, if given, so that nothing is
+    symmetric).
 
-    Returns (model, state, dt, q).
+    Returns (model, state, plan, q): ``model.context(q, state, plan)`` is the context the stepper would build.
     """
     m, s, h = sim.model, sim.state, sim.dt
-    for d in sim.stepper._drivers:
-        d.begin_step(s, h)
+    angle = s.drive_angle + (m.driver.omega * h if m.driver is not None else 0.0)
+    plan = sim.stepper.integrator.plan(s, h, angle)
     q = s.q + h * s.v
     if noise_seed is not None:
         q = q + 1e-5 * np.random.default_rng(noise_seed).standard_normal(m.ndof)
-    return m, s, h, q
+    return m, s, plan, q

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from bag_testlib import TOPIC_TYPES, full_topic, make_message, stamp_ns, to_plain
+from bag_testlib import TOPIC_TYPES, full_topic, make_message, read_run, stamp_ns, to_plain
 from cli_helpers import flagbot
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -220,28 +220,82 @@ def test_corrupt_chunk_loses_only_that_chunk_and_says_so(tmp_path, damage):
         assert lost_values == set(range(round(lo), round(hi) + 1))   # the reported time range is the lost one
 
 
+class FullDisk(io.RawIOBase):
+    """A disk with room for ``limit`` bytes: writes past it fail with ENOSPC (after writing what fits)."""
+
+    def __init__(self, limit):
+        self.buf, self.limit = bytearray(), limit
+
+    def writable(self):
+        return True
+
+    def write(self, b):
+        room = self.limit - len(self.buf)
+        if room <= 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        self.buf += bytes(b[:room])
+        if len(b) > room:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return len(b)
+
+    def tell(self):
+        return len(self.buf)
+
+
+def test_writer_refuses_a_target_it_cannot_write_and_leaves_nothing_behind(tmp_path):
+    """No such directory (not created either), a path the OS refuses, an existing file, a disk already full, a
+    reserved metadata key: a BagWriteError (an OSError and a BagError) or BagError from the constructor, and no
+    new file."""
+    from flagbot_sim.bag import BagError, BagWriteError
+    existing = tmp_path / "taken.mcap"
+    existing.write_bytes(b"keep me")
+    for target, why in ((tmp_path / "missing" / "run.mcap", "does not exist"), ("/proc/flagbot_run.mcap", "ENOENT"),
+                        (existing, "exists"), (FullDisk(40), "No space left on device (ENOSPC)")):
+        with pytest.raises(BagWriteError) as exc:
+            BagWriter(target, metadata=RunMetadata())
+        assert isinstance(exc.value, OSError) and isinstance(exc.value, BagError) and why in str(exc.value)
+    assert not (tmp_path / "missing").exists() and not Path("/proc/flagbot_run.mcap").exists()
+    assert existing.read_bytes() == b"keep me"
+    with pytest.raises(BagError, match="reserved"):
+        BagWriter(tmp_path / "meta.mcap", metadata=RunMetadata(extra={"parameters": "x"}))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.mcap"]
+
+
+def test_a_message_is_flushed_at_most_one_flush_interval_after_it_was_written(tmp_path):
+    """The flush policy behind the crash-loss bound: a chunk closes when the interval has passed since the last
+    flush, whether the next write or the recorder's flush thread (maybe_flush at seconds_to_flush) notices; a
+    quiet spell restarts the interval instead of flushing a lone message at once."""
+    from std_msgs.msg import Float64
+    assert bag.DEFAULT_FLUSH_INTERVAL == 0.1
+    clock, disk = FakeClock(), FullDisk(10**9)
+    w = BagWriter(disk, clock=clock)
+    w.add_topic("/t/omega_h", "std_msgs/msg/Float64")
+    header = len(disk.buf)
+    assert w.seconds_to_flush() == pytest.approx(0.1)
+    clock.t = 5.0                                    # idle for 5 s: nothing to flush, the interval starts again
+    w.maybe_flush()
+    assert len(disk.buf) == header and w.seconds_to_flush() == pytest.approx(0.1)
+    clock.t = 5.03
+    w.write("/t/omega_h", serialize_message(Float64(data=1.0)), 10**12)
+    assert len(disk.buf) == header                   # in the open chunk
+    assert w.seconds_to_flush() == pytest.approx(0.07)
+    clock.t = 5.09
+    w.maybe_flush()
+    assert len(disk.buf) == header                   # not due yet
+    clock.t = 5.1 + 1e-9
+    w.maybe_flush()
+    assert len(disk.buf) > header                    # on disk 0.07 s after it was written
+    assert w.seconds_to_flush() == pytest.approx(0.1)
+    # a 100 Hz stream: one chunk per 0.1 s (10 or 11 messages), never more than the interval's worth in one
+    path = tmp_path / "stream.mcap"
+    write_stream_bag(path, n=1000).close()
+    counts = [n for _, n in _chunks(path)]
+    assert sum(counts) == 1000 and max(counts) <= 11 and len(counts) >= 90
+
+
 def test_full_disk_stops_recording_and_keeps_what_was_flushed(tmp_path):
     """ENOSPC in the middle of a chunk: no exception into the node, `error` says what happened, and all but the
     last flush interval is recoverable."""
-
-    class FullDisk(io.RawIOBase):
-        def __init__(self, limit):
-            self.buf, self.limit = bytearray(), limit
-
-        def writable(self):
-            return True
-
-        def write(self, b):
-            room = self.limit - len(self.buf)
-            if room <= 0:
-                raise OSError(errno.ENOSPC, "No space left on device")
-            self.buf += bytes(b[:room])
-            if len(b) > room:
-                raise OSError(errno.ENOSPC, "No space left on device")
-            return len(b)
-
-        def tell(self):
-            return len(self.buf)
 
     disk = FullDisk(12_000)
     w = write_stream_bag(disk, n=1000)
@@ -376,10 +430,43 @@ def test_bag_summary_cli_prints_json_and_writes_the_plot(tmp_path):
     assert r.returncode == 0 and "omega_T steps" in r.stdout and "/bot/cmd_omega" in r.stdout
 
 
+def test_bag_summary_plot_says_what_its_shaded_windows_are(tmp_path):
+    from flagbot_sim.bagtools import summarize, summary_figure
+    path = tmp_path / "steps.mcap"
+    write_step_bag(path)
+    fig = summary_figure(summarize(path, tail=0.4))
+    texts = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert "steady window: the last 40 % of each omega_T step" in texts
+    assert "steady value: mean over the window" in texts and "omega_T step (new command)" in texts
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+
+
+def test_bag_summary_with_nothing_recoverable_exits_non_zero_with_a_message(tmp_path):
+    """A recording killed before its first message was flushed, and an empty but intact one: no table that looks
+    like success, but an error naming the file (and, for the damaged one, what was lost)."""
+    from std_msgs.msg import Float64
+    killed = tmp_path / "killed.mcap"
+    w = BagWriter(tmp_path / "writing.mcap", metadata=RunMetadata(scene_toml="[robot]\n"))
+    w.add_topic("/t/omega_h", "std_msgs/msg/Float64")
+    w.flush()                                               # header, metadata, schema, channel on disk; no message
+    killed.write_bytes((tmp_path / "writing.mcap").read_bytes())
+    w.write("/t/omega_h", serialize_message(Float64(data=1.0)), 10**12)
+    w.close()
+    empty = tmp_path / "empty.mcap"
+    BagWriter(empty).close()
+    for path, why, extra in ((killed, "not closed properly", []), (empty, "holds no message", ["--json"])):
+        r = flagbot("bag-summary", str(path), *extra)
+        assert r.returncode != 0 and r.stdout == "", (path, r.stdout)
+        assert r.stderr.startswith("error: ") and str(path) in r.stderr and why in r.stderr, r.stderr
+        assert "Traceback" not in r.stderr
+    assert scan(killed).messages == 0 and scan(empty).ok
+
+
 def test_read_run_gives_what_a_resimulation_needs(tmp_path):
     path = tmp_path / "steps.mcap"
     write_step_bag(path)
-    run = bag.read_run(path)
+    run = read_run(path)
     assert run.parameters == {"rate": 100} and "omega_rpm" in run.scene_toml
     assert [c[2] for c in run.cmd_omega] == [5.0, 10.0, 10.0, 15.0]
     assert [c[1] for c in run.cmd_omega] == pytest.approx([1.0, 3.0, 4.0, 6.0], abs=1e-6)   # sim time

@@ -6,9 +6,9 @@ being written (the reader reads a file that is still open) or the processes' out
 import json
 import os
 import signal
-import time
 from pathlib import Path
 
+import crash_loss
 import numpy as np
 import pytest
 from bag_testlib import (DISCOVERY_TIMEOUT, TOPIC_TYPES, ChildProcess, bag_messages, full_topic, make_message,
@@ -18,7 +18,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 
-from flagbot_sim.bag import BagReader, BagWriter, recover, scan
+from flagbot_sim.bag import BagReader, BagWriter, scan
 
 ROUNDS = 20
 TOPICS = [full_topic("/t", n) for n in TOPIC_TYPES]
@@ -145,41 +145,25 @@ def test_round_trip_record_replay_record(published, tmp_path):
     assert np.median(dev) < 0.010 and np.percentile(dev, 95) < 0.040 and max(dev) < 0.2, sorted(dev)[-10:]
 
 
-def test_kill9_loses_at_most_the_last_second(tmp_path):
-    """A recorder killed with SIGKILL leaves a file that normal readers reject but that recovers, contiguously,
-    up to within one second of the kill."""
-    out = str(tmp_path / "killed.mcap")
-    log = str(tmp_path / "stream.log")
-    rec = record(out, "/t/omega_h")
-    pub = start_helper("stream", "--topic", "/t/omega_h", "--rate", "200", "--log", log)
-    try:
-        n = wait_for(lambda: bag_messages(out) >= 300 and bag_messages(out), DISCOVERY_TIMEOUT + 10,
-                     "1.5 s of data in the file", rec)
-        # kill just before the next flush is due (the worst moment): a flush has just landed, wait 0.45 s more
-        wait_for(lambda: bag_messages(out) > n, 5.0, "the next flush", rec)
-        time.sleep(0.45)
-        t_kill = time.time_ns()
-        rec.proc.send_signal(signal.SIGKILL)
-        rec.proc.wait(timeout=10)
-        time.sleep(0.3)                     # keep publishing after the kill: nothing after it may appear
-    finally:
-        pub.stop()
-        rec.kill()
-    published = {int(k): int(t) for k, t in (line.split() for line in open(log))}
+def test_kill9_at_the_worst_moment_loses_at_most_a_quarter_second(tmp_path):
+    """A standalone recorder killed with SIGKILL just before its next flush was due (the worst moment) leaves a
+    file that normal readers reject but that `flagbot bag-recover` recovers, contiguously, up to within 0.25 s of
+    recorded time of the kill (the bound docs/recording.md states; the measurement is tests/crash_loss.py)."""
+    kill = crash_loss.measure("record", "worst", tmp_path)
+    print("kill -9:", kill.line())
+    # it really was the worst moment: a whole flush period since the last flush, the next one not yet landed
+    assert kill.since_flush >= kill.period - 3 * crash_loss.MARGIN and kill.period < 0.2, kill.line()
     with pytest.raises(Exception):          # the standard readers need the summary/footer that never got written
-        with AnyReader([Path(out)]) as ar:
+        with AnyReader([Path(kill.path)]) as ar:
             list(ar.messages())
-    rep = scan(out)
+    rep = scan(kill.path)
     assert not rep.closed and "not closed properly" in rep.describe_loss()
-    fixed = tmp_path / "recovered.mcap"
-    recover(out, fixed)
-    with BagReader(fixed) as r:
-        ks = [int(r.decode(m).data) for m in r.messages()]
+    ks = kill.values
     assert ks == list(range(len(ks))) and len(ks) >= 300
-    lost_window = (t_kill - published[ks[-1]]) * 1e-9
-    print(f"kill -9: recovered {len(ks)} messages, the last published {1e3 * lost_window:.0f} ms before the kill")
+    lost_window = kill.loss
     assert lost_window <= 1.0
-    with AnyReader([fixed]) as ar:          # the recovered file is a normal, complete file
+    assert lost_window <= 0.25, kill.line()
+    with AnyReader([Path(kill.recovered_path)]) as ar:          # the recovered file is a normal, complete file
         assert ar.message_count == len(ks)
 
 

@@ -11,14 +11,18 @@ from fd import fd_jacobian, newton_point, rel_err
 ALL_FREE = "['inertia','rft','head_drag','head_torque','motor','gravity']"
 
 
-def dense_effect_jacobian(model, eff, jac_values):
-    blocks = eff.blocks()
-    J = np.zeros((model.ndof, model.ndof))
-    for (r, c), v in zip(blocks, jac_values):
-        v = np.broadcast_to(v, (r.shape[0], r.shape[1], c.shape[1]))
-        for k in range(r.shape[0]):
-            J[np.ix_(r[k], c[k])] += v[k]
-    return J
+def effect_force(model, eff, ctx):
+    """The effect's generalised force F (the residual gets -F)."""
+    r = np.zeros(model.ndof)
+    eff.add_force(ctx, r)
+    return -r
+
+
+def dense_effect_jacobian(model, eff, ctx):
+    """dF/dq of one effect, as the effect writes it into the model's CSC pattern (the residual gets -dF/dq)."""
+    J = np.zeros(model.pattern.nnz)
+    eff.add_jacobian(ctx, J)
+    return -model.pattern.matrix(J).toarray()
 
 
 def moving_robot(scene="design1", extra=()):
@@ -31,21 +35,18 @@ def moving_robot(scene="design1", extra=()):
 
 @pytest.mark.parametrize("name", ["inertia", "rft", "head_drag", "head_torque", "gravity"])
 def test_effect_jacobian_matches_finite_differences(name):
-    m, s, h, q = newton_point(moving_robot(), noise_seed=2)
+    m, s, plan, q = newton_point(moving_robot(), noise_seed=2)
     eff = m.effect(name)
 
     def F(qq):
-        out = np.zeros(m.ndof)
-        i, f = eff.force(m.context(qq, s, h))
-        np.add.at(out, np.ravel(i), np.ravel(f))
-        return out
+        return effect_force(m, eff, m.context(qq, s, plan))
 
-    _, f_val, jac = eff.force_and_jacobian(m.context(q, s, h))
-    assert np.all(np.isfinite(f_val))
-    J = dense_effect_jacobian(m, eff, jac)
+    ctx = m.context(q, s, plan)
+    assert np.all(np.isfinite(F(q))) and np.linalg.norm(F(q)) > 0
+    J = dense_effect_jacobian(m, eff, ctx)
     J_fd = fd_jacobian(F, q, 1e-7)
     if name == "gravity":
-        assert np.abs(J_fd).max() < 1e-9 and not jac      # constant force: no Jacobian
+        assert np.abs(J_fd).max() < 1e-9 and not eff.blocks() and not J.any()   # constant force: no Jacobian
     else:
         assert np.linalg.norm(J_fd) > 0
         assert rel_err(J, J_fd) < 1e-6
@@ -58,23 +59,25 @@ def test_rft_force_matches_paper_formula_for_a_straight_rod():
     st = m.initial_state()
     rft = m.effect("rft")
     L = sc.flagellum.length
+    x = st.q[: 3 * m.net.n_nodes].reshape(-1, 3)
     for direction, eta in (([0.0, 0.0, 1.0], sc.eta_p), ([1.0, 0.0, 0.0], sc.eta_t)):
-        q = st.q.copy()
         v = 1e-3 * np.array(direction)
-        x = q[: 3 * m.net.n_nodes].reshape(-1, 3)
-        x[m.net.flagella_nodes[0]] += v * 0.01
-        F = rft.node_forces(m.context(q, st, 0.01))
+        vq = np.zeros(m.ndof)
+        vq[: 3 * m.net.n_nodes].reshape(-1, 3)[m.net.flagella_nodes[0]] = v
+        F = rft.node_forces(x, vq)
         assert np.allclose(F.sum(axis=0), -eta * L * v, rtol=1e-12, atol=0)
 
 
 def test_full_residual_jacobian_matches_finite_differences():
     """The assembled sparse Jacobian (elastic + all effects, pattern built once) is the residual's derivative."""
-    m, s, h, q = newton_point(moving_robot())
-    r, data, _ = m.residual_and_jacobian(q, s, h)
+    m, s, plan, q = newton_point(moving_robot())
+    ctx = m.context(q, s, plan)
+    r, data = m.residual_and_jacobian(ctx)
     J = m.pattern.matrix(data).toarray()
-    J_fd = fd_jacobian(lambda qq: m.residual(qq, s, h), q, 1e-7)
+    J_fd = fd_jacobian(lambda qq: m.residual(m.context(qq, s, plan)), q, 1e-7)
     assert rel_err(J, J_fd) < 1e-6
-    assert np.allclose(r, m.residual(q, s, h), rtol=1e-12, atol=1e-15)
+    assert np.allclose(r, m.residual(ctx), rtol=1e-12, atol=1e-15)
+    assert np.array_equal(data, m.jacobian(ctx))
 
 
 def test_scene_builds_only_listed_effects():
@@ -94,3 +97,25 @@ def test_scene_without_head_effects_builds_no_head_objects():
     assert m_bare.pattern.nnz <= m_full.pattern.nnz
     assert len(m_bare.pattern.slots) == len(m_full.pattern.slots) - len(
         [b for e in m_full.effects if e.name in ("inertia", "head_drag", "head_torque") for b in e.blocks()])
+
+
+def test_one_registry_names_every_effect():
+    """The scene's allowed effect names are the physics registry's, each class carries its own name, and an
+    effect is built by its class's from_scene for exactly the names a scene lists."""
+    from flagbot_sim import scene as scene_mod
+    from flagbot_sim.physics.effects import EFFECT_TYPES, Effect
+    assert list(scene_mod.EFFECTS) == list(EFFECT_TYPES)
+    assert all(cls.name == name and cls.description and issubclass(cls, Effect) for name, cls in EFFECT_TYPES.items())
+    assert set(scene_mod.HEAD_EFFECTS) == {n for n, c in EFFECT_TYPES.items() if c.on_head}
+    m = RobotModel(load_scene("design1", [f"scene.effects={ALL_FREE}"]))
+    assert [type(e) for e in m.effects] == [EFFECT_TYPES[n] for n in eval(ALL_FREE)]
+    with pytest.raises(scene_mod.SceneError, match="unknown effect 'viscous'.*valid effects: inertia, rft"):
+        load_scene("design1", ["scene.effects=['rft', 'viscous']"])
+
+
+def test_an_effect_must_fill_the_blocks_it_declared():
+    """No silent zero Jacobian blocks: slots for fewer (or more) blocks than declared is an error."""
+    m = RobotModel(load_scene("design1"))
+    rft = m.effect("rft")
+    with pytest.raises(ValueError, match="declared 3 Jacobian blocks, got 2"):
+        rft.bind(rft.slots[:2])

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from flagbot_sim.physics.frames import normalize, parallel_transport, signed_angle
+from flagbot_sim.physics.frames import parallel_transport, signed_angle, unit_rows
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.scene import load_scene
 
@@ -23,7 +23,7 @@ def rigidly_moved(model, R, shift):
     x = net.nodes @ R.T + shift
     q = net.initial_q()
     q[: 3 * net.n_nodes] = x.ravel()
-    t, _ = normalize(x[net.edges[:, 1]] - x[net.edges[:, 0]])
+    t, _ = unit_rows(x[net.edges[:, 1]] - x[net.edges[:, 0]])
     d1 = parallel_transport(el.frames0.d1, el.frames0.t, t)      # what time-parallel transport gives
     q[3 * net.n_nodes:] = signed_angle(d1, el.frames0.d1 @ R.T, t)   # material frame = R * rest frame
     return q

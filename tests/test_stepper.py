@@ -12,21 +12,30 @@ def small_robot(*extra):
     return Simulation(load_scene("design2", ["flagellum.length=0.04", *extra]))
 
 
+def natural_twist(sim) -> float:
+    """The motor hinge's natural twist in force at the current state: its rest value plus the drive angle."""
+    h = sim.model.effect("motor").twist_hinge
+    return sim.model.elastic.tau_bar[h] + sim.state.drive_angle
+
+
 def test_motor_natural_twist_integrates_a_changing_omega():
     """Paper Eq. SpecifyTheta as an integral: changing omega_T mid-run never makes the natural twist jump."""
     sim = small_robot()
-    motor = sim.model.effect("motor")
-    base = motor.base_twist
+    base = natural_twist(sim)
     expected = 0.0
     for omega in (2.0, -3.0, 7.5):
         sim.set_omega(omega)
         for _ in range(5):
-            before = sim.model.elastic.tau_bar[motor.hinge]
+            before = natural_twist(sim)
             sim.step()
             expected += omega * sim.dt
-            assert sim.model.elastic.tau_bar[motor.hinge] - before == pytest.approx(omega * sim.dt, rel=1e-12)
-    assert sim.model.elastic.tau_bar[motor.hinge] - base == pytest.approx(expected, rel=1e-12)
-    assert sim.state.extras["motor_angle"] == pytest.approx(expected, rel=1e-12)
+            assert natural_twist(sim) - before == pytest.approx(omega * sim.dt, rel=1e-12)
+    assert natural_twist(sim) - base == pytest.approx(expected, rel=1e-12)
+    assert sim.state.drive_angle == pytest.approx(expected, rel=1e-12)
+    # and the motor torque is the twisting moment of exactly that natural twist
+    el, h = sim.model.elastic, sim.model.net.motor_hinge
+    _, _, tau = el.hinge_strains(sim.state.q, el.trial_frames(sim.state.q, sim.state.frames))
+    assert sim.motor_torque() == pytest.approx(-el.k_twist[h] * (tau[h] - natural_twist(sim)), rel=1e-12)
 
 
 def test_relative_spin_of_head_and_flagella_follows_the_motor():
@@ -53,13 +62,13 @@ def test_newton_failure_halves_dt_and_still_covers_the_step():
 
 def test_a_step_that_cannot_converge_fails_loudly_and_keeps_the_state():
     sim = small_robot("numerics.max_iterations=1", "numerics.min_dt=5e-3", "motor.omega_rpm=2000")
+    base = natural_twist(sim)
     q0 = sim.state.q.copy()
     t0 = sim.time
     with pytest.raises(StepFailed, match="did not converge"):
         sim.step()
     assert sim.time == t0 and np.array_equal(sim.state.q, q0)
-    motor = sim.model.effect("motor")
-    assert sim.model.elastic.tau_bar[motor.hinge] == pytest.approx(motor.base_twist)   # no half-applied twist
+    assert sim.state.drive_angle == 0.0 and natural_twist(sim) == base      # no half-applied twist
     # and the simulation carries on once the command is reasonable again
     sim.stepper.max_iterations = 25
     sim.set_omega(1.0)
@@ -79,8 +88,7 @@ def test_reset_restores_the_initial_state():
     sim.run(0.3)
     sim.reset()
     assert sim.time == 0.0 and np.array_equal(sim.state.q, sim.initial.q)
-    motor = sim.model.effect("motor")
-    assert sim.model.elastic.tau_bar[motor.hinge] == motor.base_twist
+    assert sim.state.drive_angle == 0.0 and sim.omega_T == sim.scene.omega_T
     a = sim.summary()
     sim2 = small_robot()
     sim.run(0.2)

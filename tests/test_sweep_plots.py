@@ -66,7 +66,8 @@ def test_sweep_plot_needs_only_the_csv(sweep_dir, tmp_path):
     assert (copy / "summary.json").exists() and "n=3 overtakes n=2" in res.stdout
     # the library path, in a fresh interpreter: plotting does not even import the simulator or the beam solver
     code = ("import sys; from flagbot_sim.sweep.plots import make_all; out = make_all(sys.argv[1]); "
-            "bad = [m for m in ('flagbot_sim.physics', 'flagbot_sim.beam') if m in sys.modules]; "
+            "bad = [m for m in ('flagbot_sim.physics.simulation', 'flagbot_sim.physics.model', 'flagbot_sim.beam') "
+            "if m in sys.modules]; "
             "assert not bad, bad; print(len(out['figures']))")
     res = python_c(code, str(copy))
     assert res.returncode == 0 and res.stdout.strip() == "7", res.stderr

@@ -1,4 +1,5 @@
-"""Benchmarks: `flagbot bench accuracy` (accuracy vs time study) and `flagbot bench speed` (throughput).
+"""Benchmarks: `flagbot bench accuracy` (accuracy vs time study), `flagbot bench speed` (throughput) and
+`flagbot bench memory` (resident memory of hour-long runs).
 
 Registration imports nothing heavy: the simulator is loaded only when a benchmark actually runs.
 """
@@ -38,3 +39,7 @@ def register(sub) -> None:
     s = bsub.add_parser("speed", help="steps/s, real-time factor, per-phase breakdown, cost vs DOF, PyElastica")
     speed_arguments(s)
     s.set_defaults(func=_run("speed"))
+    m = bsub.add_parser("memory", help="resident memory of a simulation and of sim_node from 1 to 60 simulated minutes")
+    m.add_argument("--run-only", action="store_true", help="only the simulation (no ROS)")
+    m.add_argument("--node-only", action="store_true", help="only sim_node")
+    m.set_defaults(func=_run("memory"))

@@ -28,12 +28,11 @@ record. Our DER: implicit Euler + Newton, dt 1e-2 / 2e-2 s, edges 4.11 / 8.22 mm
     python benchmarks/pyelastica_compare.py --quick    # one setting per code (~7 s)
     flagbot bench speed                                # also runs it, after the throughput figures
 
-PyElastica is a benchmark-only dependency: pip install -r requirements-bench.txt.
+PyElastica is a benchmark-only dependency: pip install 'flagbot_sim[bench]' (or -r requirements-bench.txt).
 """
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import sys
@@ -43,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..optional import MissingExtra, available, require
 from ..reference import from_scene
 from ..scene import load_scene
 
@@ -165,7 +165,7 @@ def warm_der() -> None:
 # ------------------------------------------------------------------------------------------------ PyElastica
 def _elastica_parts():
     """The PyElastica pieces (imported lazily: the script's --help works without pyelastica)."""
-    import elastica as ea
+    ea = require("bench", "the PyElastica comparison")
     from numba import njit
 
     @njit(cache=True)
@@ -427,8 +427,8 @@ def compare(rpm=10.0, tol=0.01, confirm=5.0, max_time=40.0, sample=0.1, der_sett
         log(f"  DER {r.settings}: " + (f"within {100 * tol:g}% from t = {r.t_steady:.2f} s, wall "
                                        f"{r.wall_steady:.3f} s" if r.reached else r.note))
     probes = {}
-    if run_elastica_part and importlib.util.find_spec("elastica") is None:
-        log("PyElastica is not installed (pip install -r requirements-bench.txt): its half is skipped")
+    if run_elastica_part and not available("bench"):
+        log(f"{MissingExtra('bench', 'the PyElastica comparison')}; its half is skipped")
         run_elastica_part = False
     if run_elastica_part:
         w0 = time.perf_counter()

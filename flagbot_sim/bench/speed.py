@@ -1,10 +1,10 @@
 """Throughput: steps/s, real-time factor and where the time goes; cost per step vs number of DOF.
 
 The per-phase breakdown wraps the model's methods with timers for the duration of the benchmark only (the
-normal hot path carries no instrumentation): frames (edge frames and reference twist), elastic (stretch and
-bend-twist forces/Jacobian), effects (RFT, head, inertia, ...), assembly (scatter of effect values into the
-residual and the CSC data), linear solve (factorisation and solves), stepper (Newton bookkeeping, predictor,
-line search, commit) and observe (spin angles, speed, history).
+normal hot path carries no instrumentation): frames (trial context: edge frames, reference twist, trial
+velocity and acceleration), elastic (stretch and bend-twist forces/Jacobian), effects (RFT, head, inertia, ...),
+assembly (allocating and zeroing the residual and CSC data around them), linear solve (factorisation and
+solves), stepper (Newton bookkeeping, predictor, line search, commit) and observe (spin angles, speed, history).
 """
 from __future__ import annotations
 
@@ -45,10 +45,10 @@ def instrument(sim: Simulation) -> PhaseTimer:
     pt.wrap(m, "context", "frames")
     pt.wrap(m.elastic, "accumulate", "elastic")
     for e in m.effects:
-        pt.wrap(e, "force", "effects")
-        pt.wrap(e, "force_and_jacobian", "effects")
+        pt.wrap(e, "add_force", "effects")
+        pt.wrap(e, "add_jacobian", "effects")
     pt.wrap(m, "residual", "_residual_total")
-    pt.wrap(m, "residual_and_jacobian", "_jacobian_total")
+    pt.wrap(m, "jacobian", "_jacobian_total")
     pt.wrap(st.solver, "factor", "linear solve")
     pt.wrap(st.solver, "solve", "linear solve")
     pt.wrap(st, "step", "_step_total")
@@ -60,9 +60,9 @@ def breakdown(pt: PhaseTimer, steps: int) -> dict:
     """Microseconds per step in each phase."""
     t = pt.t
     evals = t["_residual_total"] + t["_jacobian_total"]
-    # residual_and_jacobian / residual include context, elastic and effects; what is left is assembly
-    assembly = evals - t["frames"] - t["elastic"] - t["effects"]
-    stepper = t["_step_total"] - evals - t["linear solve"]
+    # residual / jacobian include elastic and effects (context is separate); what is left is assembly
+    assembly = evals - t["elastic"] - t["effects"]
+    stepper = t["_step_total"] - evals - t["frames"] - t["linear solve"]
     out = {"frames": t["frames"], "elastic": t["elastic"], "effects": t["effects"], "assembly": assembly,
            "linear solve": t["linear solve"], "stepper": stepper, "observe": t["observe"]}
     return {k: 1e6 * v / steps for k, v in out.items()}

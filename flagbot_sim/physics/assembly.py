@@ -2,9 +2,9 @@
 
 Every contribution to the Jacobian is a batch of dense blocks: rows (K, a) x cols (K, b) DOF indices with values
 (K, a, b). At construction all (row, col) pairs of all batches, plus the diagonal, are merged into one CSC
-structure; each block entry gets the position of its slot in the CSC data array. Assembling a Jacobian is then a
-single ``np.bincount`` over those positions: no index sorting, no COO conversion, no per-step allocation of the
-pattern.
+structure; each block entry gets the position of its slot in the CSC data array. The springs and effects then add
+their values straight into that array through their slots: no index sorting, no COO conversion, no per-step
+allocation of the pattern.
 """
 from __future__ import annotations
 
@@ -40,14 +40,6 @@ class SparsePattern:
         self.diag_slots = inverse[offsets[-1]:]
         self.row_of_slot = self.indices.astype(np.int64)
         self.col_of_slot = col_of
-
-    def assemble(self, values: list[np.ndarray | None]) -> np.ndarray:
-        """CSC data array from block values given in the order of the blocks (None = all zero)."""
-        parts_idx = [s for s, v in zip(self.slots, values) if v is not None]
-        parts_val = [np.asarray(v).ravel() for v in values if v is not None]
-        if not parts_idx:
-            return np.zeros(self.nnz)
-        return np.bincount(np.concatenate(parts_idx), weights=np.concatenate(parts_val), minlength=self.nnz)
 
     def matrix(self, data: np.ndarray) -> sp.csc_matrix:
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.ndof, self.ndof))

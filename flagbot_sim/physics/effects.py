@@ -1,174 +1,232 @@
-"""External effects: each a small class with the same interface, built only when a scene asks for it.
+"""External effects and drivers: one small class each, built only when a scene lists it (``EFFECT_TYPES``).
 
-An effect contributes a force F(q) (generalised: forces on node DOFs, torques on twist DOFs) to the equations of
-motion, r(q) = grad E(q) - sum F(q) = 0, and its Jacobian dF/dq as a batch of dense blocks on a fixed stencil.
-Two entry points, as in dismech-rods' base_force: :meth:`Effect.force` (cheap; used by the line search) and
-:meth:`Effect.force_and_jacobian`. Effects that drive the robot (motor, clamp) also take part in the step
-protocol: :meth:`begin_step` computes their targets for a trial step from the committed state, and
-:meth:`commit` stores them once the step is accepted, so a rejected step (dt halved) leaves nothing behind.
+The equations of motion are r(q) = grad E(q) - sum_effects F(q) = 0 at the end of every step (paper Eq.
+DER3D_EOM; inertia is an effect). An effect sees one trial configuration through a :class:`StepContext`: the
+trial DOFs q, and the velocity v and acceleration a that the time integrator assigns to them, both affine in q
+(v = dv_dq q + ..., a = da_dq q + ...), so an effect never needs to know which integrator runs.
+
+The protocol (every hook has a default here; dismech-rods' base_force has the same two entry points):
+
+* ``from_scene(scene, net, elastic)``: build the effect from its scene section(s) and the rod network.
+* ``blocks()``: the Jacobian stencils it writes, as (rows (K, a), cols (K, b)) DOF index arrays. The model
+  merges them into one sparse pattern at construction and hands each block's CSC slots back through ``bind``;
+  an effect must fill exactly the blocks it declared (``bind`` checks the count).
+* ``add_force(ctx, r)``: subtract its generalised force from the residual r (cheap: the line search calls
+  only this).
+* ``add_jacobian(ctx, J)``: subtract dF/dq from the CSC data array J, on its slots.
+* ``prescribed_dofs`` and ``prescribed_values(state, angle)``: DOFs whose values the effect imposes (a clamp)
+  and their values at the end of a trial step; empty for a force.
+
+Effects keep no state that changes during a run: what changes lives in the :class:`~.model.State` (the drive
+angle) or in the step context, so a rejected trial step leaves nothing to undo.
+
+A :class:`Driver` (motor, clamp) also takes the speed command ``omega`` (rad/s), integrated into
+``State.drive_angle`` (paper Eq. SpecifyTheta as an integral: a live command changes omega without a jump). A
+driver says how the drive angle enters the physics: as the natural-twist offset of one hinge
+(``twist_hinge``, the motor) or as prescribed DOF values (``prescribed_values``, the clamp).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
+from numba import njit
 
-from . import kernels
-from .frames import normalize, parallel_transport, rowdot, signed_angle, unwrap_to
+from .frames import TrialFrames, twist_for_director, unit_rows
 from .network import RodNetwork
 
-_EYE = np.eye(3)
+_NO_DOFS = np.zeros(0, np.int64)
 
 
 @dataclass
 class StepContext:
-    """What an effect sees of one trial configuration."""
-    q: np.ndarray          # trial DOFs (end of step)
-    q_old: np.ndarray      # DOFs at the start of the step
-    v_old: np.ndarray      # DOF velocities at the start of the step
-    dt: float
-    t_new: float
-    x: np.ndarray          # (N, 3) trial positions
-    x_old: np.ndarray      # (N, 3)
-    frames: object         # TrialFrames of the trial configuration
+    """What an effect sees of one trial configuration (end of a step, or of a stage of one)."""
+    q: np.ndarray          # trial DOFs
+    x: np.ndarray          # (N, 3) view of the trial node positions
+    v: np.ndarray          # trial DOF velocities (from the integrator)
+    a: np.ndarray          # trial DOF accelerations (from the integrator)
+    dv_dq: float           # d v / d q (the integrator's coefficient; a multiple of the identity)
+    da_dq: float           # d a / d q
+    t: float               # time of the trial configuration (s)
+    h: float               # step size (s)
+    drive_angle: float     # the driver's angle at time t (rad)
+    frames: TrialFrames
 
 
 class Effect:
-    name = "effect"
-    #: True for effects on the head, so that tests can assert a scene without them builds none
-    on_head = False
+    """Base class: documents and defaults every hook of the effect protocol (module docstring)."""
+    #: the name a scene lists in ``scene.effects``
+    name: ClassVar[str] = ""
+    #: one line for ``flagbot scenes`` and the docs
+    description: ClassVar[str] = ""
+    #: True for effects that need the head (a clamped scene holds the head fixed and cannot list them)
+    on_head: ClassVar[bool] = False
+    #: DOFs the stepper holds at values the effect prescribes (their residual rows become identity rows)
+    prescribed_dofs: np.ndarray = _NO_DOFS
+
+    @classmethod
+    def from_scene(cls, scene, net: RodNetwork, elastic) -> "Effect":
+        raise NotImplementedError(f"{cls.__name__}.from_scene")
 
     def blocks(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Jacobian stencils: list of (rows (K, a), cols (K, b)) DOF index arrays."""
         return []
 
-    def force(self, ctx: StepContext) -> tuple[np.ndarray, np.ndarray] | None:
-        """(dof indices, values) of the generalised force, or None."""
-        return None
+    def bind(self, slots: list[np.ndarray]) -> None:
+        """Receive the CSC slots of the declared blocks, in the order of :meth:`blocks` (each flat, in the
+        block's (K, a, b) order)."""
+        if len(slots) != len(self.blocks()):
+            raise ValueError(f"effect {self.name!r} declared {len(self.blocks())} Jacobian blocks, "
+                             f"got {len(slots)} slot arrays")
+        self.slots = [np.ascontiguousarray(s, dtype=np.int64) for s in slots]
 
-    def force_and_jacobian(self, ctx: StepContext):
-        """(dof indices, force values, [dF/dq values per block])."""
-        f = self.force(ctx)
-        if f is None:
-            return None, None, []
-        return f[0], f[1], []
-
-    # ---- step protocol (driving effects only)
-    def begin_step(self, state, dt: float) -> None:
+    def add_force(self, ctx: StepContext, r: np.ndarray) -> None:
         pass
 
-    def commit(self, state) -> None:
+    def add_jacobian(self, ctx: StepContext, J: np.ndarray) -> None:
         pass
 
-    def initial_state(self) -> dict:
-        return {}
+    def prescribed_values(self, state, angle: float) -> np.ndarray:
+        """Values of ``prescribed_dofs`` for a step from the committed ``state`` to drive angle ``angle``."""
+        return np.zeros(0)
+
+
+class Driver(Effect):
+    """An effect commanded by a speed omega (rad/s), whose integral is the State's ``drive_angle``."""
+    #: hinge whose natural twist advances with the drive angle (-1: none)
+    twist_hinge: int = -1
+
+    def __init__(self, omega: float):
+        self.omega = float(omega)
 
 
 # ----------------------------------------------------------------------------------------------- inertia
 class Inertia(Effect):
-    """Lumped mass: F = -M (q - q_old - dt v_old) / dt^2 (paper Eq. DER3D_EOM)."""
+    """Lumped mass and rotational inertia: F = -M a (paper Eq. DER3D_EOM)."""
     name = "inertia"
+    description = "lumped mass of every node and rotational inertia of every edge (density from the scene)"
 
     def __init__(self, net: RodNetwork):
         self.mass = np.concatenate([np.repeat(net.node_mass, 3), net.edge_inertia])
         self.dofs = np.arange(net.ndof)
 
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net)
+
     def blocks(self):
         return [(self.dofs[:, None], self.dofs[:, None])]
 
-    def force(self, ctx):
-        return self.dofs, -self.mass * (ctx.q - ctx.q_old - ctx.dt * ctx.v_old) / ctx.dt ** 2
+    def add_force(self, ctx, r):
+        r += self.mass * ctx.a
 
-    def force_and_jacobian(self, ctx):
-        idx, f = self.force(ctx)
-        return idx, f, [(-self.mass / ctx.dt ** 2)[:, None, None]]
+    def add_jacobian(self, ctx, J):
+        J[self.slots[0]] += self.mass * ctx.da_dq
 
 
 # ----------------------------------------------------------------------------------------------- gravity
 class Gravity(Effect):
     name = "gravity"
+    description = "weight of every node, m*g"
 
     def __init__(self, net: RodNetwork, g):
-        self.dofs = np.arange(3 * net.n_nodes)
         self.f = (net.node_mass[:, None] * np.asarray(g, float)[None, :]).ravel()
+        self.n = 3 * net.n_nodes
 
-    def force(self, ctx):
-        return self.dofs, self.f
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, scene.gravity.g)
+
+    def add_force(self, ctx, r):
+        r[: self.n] -= self.f
 
 
 # ----------------------------------------------------------------------------------------------- RFT drag
+@njit(cache=True)
+def _rft(x, v, dv_dx, k, a, b, vor, eta_t, eta_p, dofs, r, J, s_kk, s_ka, s_kb, want_jacobian):
+    """F_k = -l_k [eta_t (v.t) t + eta_p (v - (v.t) t)] into r (residual: -F); -dF/dx into J."""
+    de = eta_t - eta_p
+    tv = np.empty(3)
+    vv = np.empty(3)
+    for n in range(k.shape[0]):
+        kk, aa, bb = k[n], a[n], b[n]
+        for i in range(3):
+            vv[i] = v[3 * kk + i]
+            tv[i] = x[bb, i] - x[aa, i]
+        chord = math.sqrt(tv[0] * tv[0] + tv[1] * tv[1] + tv[2] * tv[2])
+        tv /= chord
+        vt = vv[0] * tv[0] + vv[1] * tv[1] + vv[2] * tv[2]
+        l = vor[n]
+        for i in range(3):
+            r[dofs[n, i]] += l * (eta_p * vv[i] + de * vt * tv[i])
+        if not want_jacobian:
+            continue
+        # through v_k: dF/dx_k = -l dv_dx (eta_p I + de t t^T); through the tangent:
+        # dF/dt = -l de (vt I + t v^T), dt/dx_b = (I - t t^T) / chord = -dt/dx_a
+        for i in range(3):
+            for j in range(3):
+                dij = 1.0 if i == j else 0.0
+                J[s_kk[n, i, j]] += l * dv_dx * (eta_p * dij + de * tv[i] * tv[j])
+                acc = 0.0
+                for m in range(3):
+                    dft = -l * de * (vt * (1.0 if i == m else 0.0) + tv[i] * vv[m])
+                    acc += dft * ((1.0 if m == j else 0.0) - tv[m] * tv[j])
+                J[s_kb[n, i, j]] -= acc / chord
+                J[s_ka[n, i, j]] += acc / chord
+
+
 class RFTDrag(Effect):
     """Resistive-force theory on the flagellum nodes (paper Eqs. externalForceTail, viscousForce).
 
-    F_k = -l_k [eta_t (v.t) t + eta_p (v - (v.t) t)] with l_k the node's Voronoi length on the flagellum,
-    v_k = (x_k - x_k_old) / dt from the implicit step and t_k the node tangent, the unit chord between its
-    neighbours (one-sided at the base and the tip). The Jacobian includes the tangent's dependence on the
-    positions (the lab's codes freeze it; the full one keeps Newton quadratic when the flagella swing).
+    F_k = -l_k [eta_t (v.t) t + eta_p (v - (v.t) t)] with l_k the node's Voronoi length on the flagellum, v_k its
+    velocity and t_k the node tangent, the unit chord between its neighbours (one-sided at the base and the tip).
+    The Jacobian includes the tangent's dependence on the positions (the lab's codes freeze it; the full one
+    keeps Newton quadratic when the flagella swing).
     """
     name = "rft"
+    description = "resistive-force-theory drag of the medium on the flagella (eta_t, eta_p from mu, L, r0)"
 
     def __init__(self, net: RodNetwork, eta_t: float, eta_p: float):
-        self.eta_t, self.eta_p = eta_t, eta_p
-        k_list, a_list, b_list, l_list = [], [], [], []
+        self.eta_t, self.eta_p = float(eta_t), float(eta_p)
+        k, a, b, l = [], [], [], []
         for nodes, vor in zip(net.flagella_nodes, net.flagellum_voronoi):
-            m = len(nodes)
-            a = np.concatenate([[nodes[0]], nodes[:-2], [nodes[-2]]])
-            b = np.concatenate([[nodes[1]], nodes[2:], [nodes[-1]]])
-            k_list.append(nodes)
-            a_list.append(a)
-            b_list.append(b)
-            l_list.append(vor)
-            assert len(a) == m
-        self.k = np.concatenate(k_list)
-        self.a = np.concatenate(a_list)
-        self.b = np.concatenate(b_list)
-        self.l = np.concatenate(l_list)
+            k.append(nodes)
+            a.append(np.concatenate([[nodes[0]], nodes[:-2], [nodes[-2]]]))
+            b.append(np.concatenate([[nodes[1]], nodes[2:], [nodes[-1]]]))
+            l.append(vor)
+        self.k, self.a, self.b = (np.concatenate(z).astype(np.int64) for z in (k, a, b))
+        self.l = np.concatenate(l)
         self.dof_k = net.node_dofs(self.k)
-        self._no_jacobian = np.empty((1, 3, 3))
         self.dof_a = net.node_dofs(self.a)
         self.dof_b = net.node_dofs(self.b)
+
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, scene.eta_t, scene.eta_p)
 
     def blocks(self):
         return [(self.dof_k, self.dof_k), (self.dof_k, self.dof_a), (self.dof_k, self.dof_b)]
 
-    def _kinematics(self, ctx):
-        v = (ctx.x[self.k] - ctx.x_old[self.k]) / ctx.dt
-        t, chord = normalize(ctx.x[self.b] - ctx.x[self.a])
-        vt = rowdot(v, t)
-        return v, t, chord, vt
+    def bind(self, slots):
+        super().bind(slots)
+        self._s = [s.reshape(-1, 3, 3) for s in self.slots]
 
-    def node_forces(self, ctx) -> np.ndarray:
-        v, t, _, vt = self._kinematics(ctx)
-        return -self.l[:, None] * (self.eta_p * v + ((self.eta_t - self.eta_p) * vt)[:, None] * t)
+    def _run(self, x, v, dv_dx, r, J, want):
+        _rft(x, v, dv_dx, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, self.dof_k, r, J, *self._s, want)
 
-    #: compiled kernel when numba is available (set False on an instance for the numpy reference)
-    use_kernels = kernels.AVAILABLE
+    def add_force(self, ctx, r):
+        self._run(ctx.x, ctx.v, ctx.dv_dq, r, np.empty(0), False)
 
-    def force(self, ctx):
-        if self.use_kernels:
-            F = np.empty((len(self.k), 3))
-            kernels.rft(ctx.x, ctx.x_old, ctx.dt, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, F,
-                        self._no_jacobian, self._no_jacobian, False)
-            return self.dof_k, F
-        return self.dof_k, self.node_forces(ctx)
+    def add_jacobian(self, ctx, J):
+        self._run(ctx.x, ctx.v, ctx.dv_dq, np.zeros(len(ctx.q)), J, True)
 
-    def force_and_jacobian(self, ctx):
-        if self.use_kernels:
-            n = len(self.k)
-            F, J_k, J_b = np.empty((n, 3)), np.empty((n, 3, 3)), np.empty((n, 3, 3))
-            kernels.rft(ctx.x, ctx.x_old, ctx.dt, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, F, J_k,
-                        J_b, True)
-            return self.dof_k, F, [J_k, -J_b, J_b]
-        v, t, chord, vt = self._kinematics(ctx)
-        l, de = self.l[:, None, None], self.eta_t - self.eta_p
-        F = -self.l[:, None] * (self.eta_p * v + (de * vt)[:, None] * t)
-        tt = t[:, :, None] * t[:, None, :]
-        dF_dx = -(l / ctx.dt) * (self.eta_p * _EYE + de * tt)                     # through v_k
-        dF_dt = -l * de * (vt[:, None, None] * _EYE + t[:, :, None] * v[:, None, :])  # through t_k
-        dt_db = (_EYE - tt) / chord[:, None, None]
-        J_b = dF_dt @ dt_db
-        return self.dof_k, F, [dF_dx, -J_b, J_b]
+    def node_forces(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(n, 3) RFT forces on the flagellum nodes ``self.k`` for positions x (N, 3) and DOF velocities v."""
+        r = np.zeros(len(v))
+        _rft(x, v, 0.0, self.k, self.a, self.b, self.l, self.eta_t, self.eta_p, self.dof_k, r, np.empty(0),
+             *([np.zeros((0, 3, 3), np.int64)] * 3), False)
+        return -r[self.dof_k]
 
 
 # ----------------------------------------------------------------------------------------------- head
@@ -179,22 +237,26 @@ class HeadDrag(Effect):
     exactly the paper's force on v_h = dx1/dt, and it also resists the head's tilting.
     """
     name = "head_drag"
+    description = "Stokes drag on the head, -C1*6*pi*mu*R_h*v_h"
     on_head = True
 
     def __init__(self, net: RodNetwork, coefficient: float):
-        self.c = coefficient
-        self.dofs = net.node_dofs(net.head_nodes)          # (3, 3)
-        self.w = coefficient / len(net.head_nodes)
+        self.c = float(coefficient)
+        self.dofs = net.node_dofs(net.head_nodes).ravel()         # (9,)
+        self.w = self.c / len(net.head_nodes)
+
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, scene.head_drag_coefficient)
 
     def blocks(self):
-        return [(self.dofs, self.dofs)]
+        return [(self.dofs[:, None], self.dofs[:, None])]
 
-    def force(self, ctx):
-        return self.dofs, -self.w * (ctx.q[self.dofs] - ctx.q_old[self.dofs]) / ctx.dt
+    def add_force(self, ctx, r):
+        r[self.dofs] += self.w * ctx.v[self.dofs]
 
-    def force_and_jacobian(self, ctx):
-        idx, f = self.force(ctx)
-        return idx, f, [np.broadcast_to(-self.w / ctx.dt * _EYE, (len(self.dofs), 3, 3))]
+    def add_jacobian(self, ctx, J):
+        J[self.slots[0]] += self.w * ctx.dv_dq
 
 
 class HeadTorque(Effect):
@@ -204,56 +266,48 @@ class HeadTorque(Effect):
     transported reference frame is exactly d(theta^0)/dt; the torque acts on that twist DOF.
     """
     name = "head_torque"
+    description = "Stokes torque on the head spin, -C2*8*pi*mu*R_h^3*omega_h"
     on_head = True
 
     def __init__(self, net: RodNetwork, coefficient: float):
-        self.c = coefficient
-        self.dof = np.array([net.edge_dof(net.head_edge)])
+        self.c = float(coefficient)
+        self.dof = int(net.edge_dof(net.head_edge))
+
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, scene.head_torque_coefficient)
 
     def blocks(self):
-        return [(self.dof[:, None], self.dof[:, None])]
+        return [(np.array([[self.dof]]), np.array([[self.dof]]))]
 
-    def force(self, ctx):
-        return self.dof, -self.c * (ctx.q[self.dof] - ctx.q_old[self.dof]) / ctx.dt
+    def add_force(self, ctx, r):
+        r[self.dof] += self.c * ctx.v[self.dof]
 
-    def force_and_jacobian(self, ctx):
-        idx, f = self.force(ctx)
-        return idx, f, [np.full((1, 1, 1), -self.c / ctx.dt)]
+    def add_jacobian(self, ctx, J):
+        J[self.slots[0][0]] += self.c * ctx.dv_dq
 
 
 # ----------------------------------------------------------------------------------------------- drivers
-class Motor(Effect):
-    """The motor at the head centre: the natural twist of the head/shaft hinge advances by omega_T * dt.
+class Motor(Driver):
+    """The motor at the head centre: the natural twist of the head/shaft hinge advances with the drive angle.
 
-    Paper Eq. SpecifyTheta writes tau_bar = omega_T t; integrating omega_T step by step instead lets omega_T
-    change at any step (a live ROS command) without a jump in the natural twist.
+    Paper Eq. SpecifyTheta writes tau_bar = omega_T t; the drive angle integrates omega_T step by step instead,
+    so omega_T can change at any step (a live ROS command) without a jump in the natural twist.
     """
     name = "motor"
+    description = "motor at the head centre: natural twist of the head/shaft hinge advanced by omega_T*dt"
     on_head = True
 
-    def __init__(self, net: RodNetwork, elastic, omega_T: float):
-        self.elastic = elastic
-        self.hinge = net.motor_hinge
-        self.omega = float(omega_T)
-        self.base_twist = float(elastic.tau_bar0[self.hinge])
-        self._trial_angle = 0.0
+    def __init__(self, net: RodNetwork, omega_T: float):
+        super().__init__(omega_T)
+        self.twist_hinge = int(net.motor_hinge)
 
-    def initial_state(self):
-        return {"motor_angle": 0.0}
-
-    def begin_step(self, state, dt):
-        self._trial_angle = state.extras["motor_angle"] + self.omega * dt
-        self.elastic.tau_bar[self.hinge] = self.base_twist + self._trial_angle
-
-    def commit(self, state):
-        state.extras["motor_angle"] = self._trial_angle
-
-    def restore(self, state):
-        """Make the elastic model's natural twist match a committed state (after reset / rollback)."""
-        self.elastic.tau_bar[self.hinge] = self.base_twist + state.extras["motor_angle"]
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, scene.omega_T)
 
 
-class Clamp(Effect):
+class Clamp(Driver):
     """Drives the plate (joint, plate arm, socket) of a single flagellum about the x axis at omega.
 
     The flagellum is clamped in the socket, so its base position and tangent follow the plate: the paper's
@@ -261,54 +315,41 @@ class Clamp(Effect):
     prescribed; the twist angles are chosen so that the material frames turn rigidly with the plate.
     """
     name = "clamp"
+    description = ("flagellum base clamped to a plate driven about the axis at omega (no head; the paper's "
+                   "'clamped flagellum fixed in space')")
 
     def __init__(self, net: RodNetwork, elastic, omega: float):
-        self.net = net
-        self.elastic = elastic
-        self.omega = float(omega)
+        super().__init__(omega)
         self.nodes = np.unique(np.concatenate([[net.joint_node], net.edges[net.plate_edges].ravel(),
                                                net.edges[net.socket_edges].ravel()]))
         self.edges = np.concatenate([net.plate_edges, net.socket_edges])
         self.x0 = net.nodes[self.nodes]
-        # material director m1 of the driven edges at rest (theta = 0)
-        self.m1_0 = elastic.frames0.d1[self.edges].copy()
+        self.m1_0 = elastic.frames0.d1[self.edges].copy()          # material director m1 at rest (theta = 0)
         self._edge_local = np.searchsorted(self.nodes, net.edges[self.edges])   # driven edges in self.nodes
         self._theta_dofs = net.edge_dof(self.edges)
-        #: DOFs the stepper holds at the clamp's values (their residual rows become identity rows)
-        self.prescribed_dofs = np.concatenate([net.node_dofs(self.nodes).ravel(), net.edge_dof(self.edges)])
-        self._trial = None
+        self.prescribed_dofs = np.concatenate([net.node_dofs(self.nodes).ravel(), self._theta_dofs])
 
-    #: compiled kernel when numba is available (set False on an instance for the numpy reference). The numpy
-    #: path costs ~55 us more per sub-step (numpy call overhead on two edges), ~15-20% of a clamped step.
-    use_kernels = kernels.AVAILABLE
-
-    def initial_state(self):
-        return {"clamp_angle": 0.0}
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, elastic, scene.omega_T)
 
     @staticmethod
     def rotation(phi: float) -> np.ndarray:
         c, s = math.cos(phi), math.sin(phi)
         return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
-    def begin_step(self, state, dt):
-        phi = state.extras["clamp_angle"] + self.omega * dt
-        R = self.rotation(phi)
+    def prescribed_values(self, state, angle):
+        R = self.rotation(angle)
         x = self.x0 @ R.T
-        # twist angles that make the material frame the rotated rest frame, given the transported reference frame
         e = self._edge_local
-        t, _ = normalize(x[e[:, 1]] - x[e[:, 0]])
+        t, _ = unit_rows(x[e[:, 1]] - x[e[:, 0]])
         fr = state.frames
-        theta_old = state.q[self._theta_dofs]
-        if self.use_kernels:
-            theta = np.empty(len(self.edges))
-            kernels.clamp_twist(fr.d1[self.edges], fr.t[self.edges], t, self.m1_0 @ R.T, theta_old, theta)
-        else:
-            d1_new = parallel_transport(fr.d1[self.edges], fr.t[self.edges], t)
-            theta = unwrap_to(signed_angle(d1_new, self.m1_0 @ R.T, t), theta_old)
-        self._trial = (phi, np.concatenate([x.ravel(), theta]))
+        theta = twist_for_director(fr.d1[self.edges], fr.t[self.edges], t, self.m1_0 @ R.T,
+                                   state.q[self._theta_dofs])
+        return np.concatenate([x.ravel(), theta])
 
-    def prescribed(self):
-        return self.prescribed_dofs, self._trial[1]
 
-    def commit(self, state):
-        state.extras["clamp_angle"] = self._trial[0]
+#: every effect a scene may list, by name, in the order ``flagbot scenes`` shows them (scipy's METHODS shape:
+#: adding an effect is one class here plus, if it has constants, its keys in a scene section)
+EFFECT_TYPES: dict[str, type[Effect]] = {cls.name: cls for cls in
+                                         (Inertia, RFTDrag, HeadDrag, HeadTorque, Motor, Clamp, Gravity)}

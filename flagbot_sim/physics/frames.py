@@ -1,4 +1,4 @@
-"""Reference and material frames of the edges, vectorised over all edges.
+"""Reference and material frames of the edges (compiled: the formulas exist once, here).
 
 Each edge carries a reference frame {d1, d2, t} that is *time-parallel transported*: from one time step to the
 next it is rotated by the smallest rotation taking the old tangent to the new one, so it never spins about the
@@ -9,102 +9,193 @@ tangent by itself. The material frame is the reference frame turned by the edge'
 The *reference twist* of a hinge is the angle between the space-parallel transport of the first edge's d1 onto
 the second edge and the second edge's own d1 (Bergou et al. 2010). It is tracked continuously (no 2*pi jumps),
 because the robot turns its parts through many revolutions.
+
+The scalar helpers (``cross3``, ``transport3``, ``angle3``) are the single implementation of each formula; the
+array functions below loop over them and are what the rest of the package calls (hot path and observation
+alike). ``NUMBA_DISABLE_JIT=1`` runs the same code as plain Python for debugging.
 """
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
+from numba import njit
 
 
-def rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("...i,...i->...", a, b)
+# ------------------------------------------------------------------------------------------- scalar formulas
+@njit(cache=True)
+def cross3(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (n, 3) arrays (several times faster than np.cross on small batches)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+@njit(cache=True)
+def transport3(c0, c1, c2, t0, t1, t2, u0, u1, u2):
+    """Rotate u by the minimal rotation taking unit vector c to unit vector t.
+
+    Rodrigues' formula with b = c x t (unnormalised): R u = (c.t) u + b x u + b (b.u) / (1 + c.t); exact for any
+    angle below pi and smooth (no branch) as c -> t.
+    """
+    b0, b1, b2 = cross3(c0, c1, c2, t0, t1, t2)
+    c = c0 * t0 + c1 * t1 + c2 * t2
+    w0, w1, w2 = cross3(b0, b1, b2, u0, u1, u2)
+    bu = (b0 * u0 + b1 * u1 + b2 * u2) / (1.0 + c)
+    return c * u0 + w0 + b0 * bu, c * u1 + w1 + b1 * bu, c * u2 + w2 + b2 * bu
+
+
+@njit(cache=True)
+def angle3(u0, u1, u2, v0, v1, v2, a0, a1, a2):
+    """Signed angle from u to v about the axis a (right-handed), in (-pi, pi]."""
+    x0, x1, x2 = cross3(u0, u1, u2, v0, v1, v2)
+    return math.atan2(x0 * a0 + x1 * a1 + x2 * a2, u0 * v0 + u1 * v1 + u2 * v2)
+
+
+@njit(cache=True)
+def material3(d10, d11, d12, d20, d21, d22, theta):
+    """Material directors (m1, m2) of a reference frame (d1, d2) turned by the twist angle theta."""
+    c, s = math.cos(theta), math.sin(theta)
+    return (c * d10 + s * d20, c * d11 + s * d21, c * d12 + s * d22,
+            -s * d10 + c * d20, -s * d11 + c * d21, -s * d12 + c * d22)
+
+
+@njit(cache=True)
+def unwrap(angle, reference):
+    """``angle`` plus the multiple of 2 pi that brings it closest to ``reference``."""
+    return angle + 2.0 * math.pi * np.round((reference - angle) / (2.0 * math.pi))
+
+
+# ------------------------------------------------------------------------------------------- row-wise forms
+@njit(cache=True)
+def parallel_transport(u, t1, t2):
+    """Row-wise :func:`transport3`: u (n, 3) carried from unit tangents t1 to t2."""
+    out = np.empty_like(u)
+    for k in range(u.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = transport3(t1[k, 0], t1[k, 1], t1[k, 2], t2[k, 0], t2[k, 1], t2[k, 2],
+                                                     u[k, 0], u[k, 1], u[k, 2])
     return out
 
 
-def normalize(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    n = np.linalg.norm(v, axis=-1)
-    return v / n[..., None], n
+@njit(cache=True)
+def signed_angle(u, v, axis):
+    """Row-wise :func:`angle3`."""
+    out = np.empty(u.shape[0])
+    for k in range(u.shape[0]):
+        out[k] = angle3(u[k, 0], u[k, 1], u[k, 2], v[k, 0], v[k, 1], v[k, 2], axis[k, 0], axis[k, 1], axis[k, 2])
+    return out
 
 
-def parallel_transport(u: np.ndarray, t1: np.ndarray, t2: np.ndarray) -> np.ndarray:
-    """Rotate u by the minimal rotation taking unit vector t1 to unit vector t2 (row-wise).
-
-    Rodrigues' formula with b = t1 x t2 (unnormalised): R u = c u + b x u + b (b.u) / (1 + c), c = t1.t2.
-    Exact for any angle below pi and smooth (no branch) as t1 -> t2.
-    """
-    b = cross(t1, t2)
-    c = rowdot(t1, t2)
-    return c[..., None] * u + cross(b, u) + b * (rowdot(b, u) / (1.0 + c))[..., None]
-
-
-def signed_angle(u: np.ndarray, v: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """Angle from u to v about axis (right-handed), row-wise, in (-pi, pi]."""
-    return np.arctan2(rowdot(cross(u, v), axis), rowdot(u, v))
+@njit(cache=True)
+def unit_rows(v):
+    """(v / |v|, |v|) row-wise."""
+    out = np.empty_like(v)
+    n = np.empty(v.shape[0])
+    for k in range(v.shape[0]):
+        nk = math.sqrt(v[k, 0] ** 2 + v[k, 1] ** 2 + v[k, 2] ** 2)
+        n[k] = nk
+        out[k, 0], out[k, 1], out[k, 2] = v[k, 0] / nk, v[k, 1] / nk, v[k, 2] / nk
+    return out, n
 
 
-def initial_frames(tangents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Reference directors for straight-start edges: d1 = y for axial edges, x for the others.
-
-    With this choice the head's material frame starts as the lab frame (identity orientation).
-    """
-    cand = np.tile(np.array([0.0, 1.0, 0.0]), (len(tangents), 1))
-    radial = np.abs(tangents[:, 1]) > 0.5
-    cand[radial] = np.array([1.0, 0.0, 0.0])
-    d1, _ = normalize(cand - rowdot(cand, tangents)[:, None] * tangents)
-    d2 = cross(tangents, d1)
-    return d1, d2
-
-
-def material_frames(d1: np.ndarray, d2: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    c = np.cos(theta)[:, None]
-    s = np.sin(theta)[:, None]
-    return c * d1 + s * d2, -s * d1 + c * d2
+@njit(cache=True)
+def twist_for_director(d1c, tc, t_new, m_target, theta_old):
+    """Twist angles that make each edge's material director m1 equal ``m_target``, given reference frames
+    carried from (d1c, tc) to the unit tangents t_new by time-parallel transport; each continuous with
+    ``theta_old`` (no 2 pi jumps)."""
+    out = np.empty(t_new.shape[0])
+    for k in range(t_new.shape[0]):
+        t0, t1, t2 = t_new[k, 0], t_new[k, 1], t_new[k, 2]
+        p0, p1, p2 = transport3(tc[k, 0], tc[k, 1], tc[k, 2], t0, t1, t2, d1c[k, 0], d1c[k, 1], d1c[k, 2])
+        ang = angle3(p0, p1, p2, m_target[k, 0], m_target[k, 1], m_target[k, 2], t0, t1, t2)
+        out[k] = unwrap(ang, theta_old[k])
+    return out
 
 
-def unwrap_to(angle: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Add multiples of 2*pi to ``angle`` so that it is the representative closest to ``reference``."""
-    return angle + 2.0 * np.pi * np.round((reference - angle) / (2.0 * np.pi))
+# ------------------------------------------------------------------------------------------- trial frames
+@njit(cache=True)
+def _trial_frames(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt):
+    for k in range(edges.shape[0]):
+        a, b = edges[k, 0], edges[k, 1]
+        e0, e1, e2 = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+        le = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        t0, t1, t2 = e0 / le, e1 / le, e2 / le
+        length[k] = le
+        t[k, 0], t[k, 1], t[k, 2] = t0, t1, t2
+        p0, p1, p2 = transport3(tc[k, 0], tc[k, 1], tc[k, 2], t0, t1, t2, d1c[k, 0], d1c[k, 1], d1c[k, 2])
+        # re-orthonormalise against round-off drift over millions of steps
+        pt = p0 * t0 + p1 * t1 + p2 * t2
+        p0, p1, p2 = p0 - pt * t0, p1 - pt * t1, p2 - pt * t2
+        pn = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+        p0, p1, p2 = p0 / pn, p1 / pn, p2 / pn
+        d1[k, 0], d1[k, 1], d1[k, 2] = p0, p1, p2
+        d2[k, 0], d2[k, 1], d2[k, 2] = cross3(t0, t1, t2, p0, p1, p2)
+    # reference twist: an edge traversed against its direction enters with tangent -t (sign)
+    for h in range(hinge_edges.shape[0]):
+        ea, eb = hinge_edges[h, 0], hinge_edges[h, 1]
+        sa, sb = sign[h, 0], sign[h, 1]
+        b0, b1, b2 = sb * t[eb, 0], sb * t[eb, 1], sb * t[eb, 2]
+        p0, p1, p2 = transport3(sa * t[ea, 0], sa * t[ea, 1], sa * t[ea, 2], b0, b1, b2,
+                                d1[ea, 0], d1[ea, 1], d1[ea, 2])
+        ang = angle3(p0, p1, p2, d1[eb, 0], d1[eb, 1], d1[eb, 2], b0, b1, b2)
+        rt[h] = unwrap(ang, ref_prev[h])
+
+
+@dataclass
+class TrialFrames:
+    """Frames of a trial configuration: tangents, edge lengths, transported reference frames, reference twist."""
+    t: np.ndarray
+    length: np.ndarray
+    d1: np.ndarray
+    d2: np.ndarray
+    ref_twist: np.ndarray
+    t_committed: np.ndarray   # tangents the reference frames were transported from
 
 
 class EdgeFrames:
     """Committed reference frames of all edges and the hinges' committed reference twist."""
 
-    def __init__(self, tangents: np.ndarray):
-        self.t = tangents.copy()
-        self.d1, self.d2 = initial_frames(tangents)
-        self.ref_twist: np.ndarray | None = None   # set by the elastic model at construction
-
-    def transported(self, t_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Reference frames carried by time-parallel transport to the new tangents (not committed)."""
-        d1 = parallel_transport(self.d1, self.t, t_new)
-        # re-orthonormalise against round-off drift over millions of steps
-        d1 -= rowdot(d1, t_new)[:, None] * t_new
-        d1 /= np.linalg.norm(d1, axis=1)[:, None]
-        d2 = cross(t_new, d1)
-        return d1, d2
-
-    def commit(self, t_new: np.ndarray, d1: np.ndarray, d2: np.ndarray, ref_twist: np.ndarray) -> None:
-        self.t = t_new.copy()
-        self.d1 = d1.copy()
-        self.d2 = d2.copy()
-        self.ref_twist = ref_twist.copy()
+    def __init__(self, t: np.ndarray, d1: np.ndarray, d2: np.ndarray, ref_twist: np.ndarray):
+        self.t, self.d1, self.d2, self.ref_twist = t, d1, d2, ref_twist
 
     @classmethod
-    def committed(cls, t, d1, d2, ref_twist) -> "EdgeFrames":
-        """Frames made from freshly computed arrays (taken as they are: the caller gives up ownership)."""
-        fr = cls.__new__(cls)
-        fr.t, fr.d1, fr.d2, fr.ref_twist = t, d1, d2, ref_twist
-        return fr
+    def initial(cls, tangents: np.ndarray, n_hinges: int) -> "EdgeFrames":
+        """Reference directors for the straight start: d1 = y for axial edges, x for radial ones.
+
+        With this choice the head's material frame starts as the lab frame (identity orientation). Used once,
+        when a model is built; the reference twist is set by the elastic model from these frames.
+        """
+        t = np.array(tangents, dtype=float)
+        cand = np.tile(np.array([0.0, 1.0, 0.0]), (len(t), 1))
+        cand[np.abs(t[:, 1]) > 0.5] = np.array([1.0, 0.0, 0.0])
+        d1, _ = unit_rows(cand - np.sum(cand * t, axis=1)[:, None] * t)
+        d2 = np.cross(t, d1)
+        return cls(t, d1, d2, np.zeros(n_hinges))
+
+    @classmethod
+    def of(cls, trial: TrialFrames) -> "EdgeFrames":
+        """The frames of an accepted trial configuration (takes its arrays: the trial is not used again)."""
+        return cls(trial.t, trial.d1, trial.d2, trial.ref_twist)
 
     def copy(self) -> "EdgeFrames":
-        other = EdgeFrames.__new__(EdgeFrames)
-        other.t, other.d1, other.d2 = self.t.copy(), self.d1.copy(), self.d2.copy()
-        other.ref_twist = None if self.ref_twist is None else self.ref_twist.copy()
-        return other
+        return EdgeFrames(self.t.copy(), self.d1.copy(), self.d2.copy(), self.ref_twist.copy())
+
+
+def trial_frames(x: np.ndarray, edges: np.ndarray, hinge_edges: np.ndarray, sign: np.ndarray,
+                 committed: EdgeFrames) -> TrialFrames:
+    """Frames of the configuration with node positions ``x`` (N, 3), carried from the committed frames."""
+    ne, nh = edges.shape[0], hinge_edges.shape[0]
+    t, length = np.empty((ne, 3)), np.empty(ne)
+    d1, d2, rt = np.empty((ne, 3)), np.empty((ne, 3)), np.empty(nh)
+    _trial_frames(x, edges, committed.d1, committed.t, hinge_edges, sign, committed.ref_twist, t, length, d1, d2,
+                  rt)
+    return TrialFrames(t=t, length=length, d1=d1, d2=d2, ref_twist=rt, t_committed=committed.t)
+
+
+@njit(cache=True)
+def material_frames(d1, d2, theta):
+    """Row-wise :func:`material3`: (m1, m2) of edges with reference frames (d1, d2) and twist angles theta."""
+    m1, m2 = np.empty_like(d1), np.empty_like(d1)
+    for k in range(d1.shape[0]):
+        (m1[k, 0], m1[k, 1], m1[k, 2],
+         m2[k, 0], m2[k, 1], m2[k, 2]) = material3(d1[k, 0], d1[k, 1], d1[k, 2], d2[k, 0], d2[k, 1], d2[k, 2],
+                                                   theta[k])
+    return m1, m2

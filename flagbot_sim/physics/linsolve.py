@@ -6,10 +6,12 @@
 
       [A_1          B_1]
       [     A_2     B_2]      A_i banded   -> LAPACK dgbtrf (partial pivoting), O(N_i b^2)
-      [         ... ...]      S = D - sum_i C_i A_i^-1 B_i   (small, dense) -> LAPACK getrf
+      [         ... ...]      S = D - sum_i C_i A_i^-1 B_i   (small, dense) -> LAPACK dgetrf
       [C_1  C_2 ... D  ]
 
-  so the cost grows linearly with the number of nodes.
+  so the cost grows linearly with the number of nodes. The factorisation and the solves run as one compiled
+  call each, calling LAPACK (scipy's own, through ``scipy.linalg.cython_lapack``) for every LU: the only LU
+  implementation in the package is LAPACK's.
 * :class:`SparseLU` is scipy's SuperLU (COLAMD ordering): general, used when a network has no arrow structure.
 
 Both take the CSC data array assembled on :class:`~flagbot_sim.physics.assembly.SparsePattern`; the arrow solver
@@ -17,17 +19,133 @@ maps every CSC slot once, at construction, to its place in the banded / dense bl
 """
 from __future__ import annotations
 
+import llvmlite.binding as llvm
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse.linalg as spla
-from scipy.linalg import lapack
+from numba import njit, types
+from numba.extending import get_cython_function_address
 
-from . import kernels
 from .assembly import SparsePattern
 
 
 class SingularJacobian(RuntimeError):
     pass
+
+
+def _lapack(name: str, nargs: int):
+    """A LAPACK routine of scipy's, callable from compiled code, every argument a pointer (Fortran ABI).
+
+    Bound by symbol name (registered with LLVM in every process), not by address, so the compiled callers can
+    be cached on disk like every other kernel.
+    """
+    symbol = f"flagbot_{name}"
+    llvm.add_symbol(symbol, get_cython_function_address("scipy.linalg.cython_lapack", name))
+    return types.ExternalFunction(symbol, types.void(*([types.voidptr] * nargs)))
+
+
+_dgbtrf = _lapack("dgbtrf", 8)     # m n kl ku ab ldab ipiv info
+_dgbtrs = _lapack("dgbtrs", 11)    # trans n kl ku nrhs ab ldab ipiv b ldb info
+_dgetrf = _lapack("dgetrf", 6)     # m n a lda ipiv info
+_dgetrs = _lapack("dgetrs", 9)     # trans n nrhs a lda ipiv b ldb info
+
+
+@njit(cache=True)
+def _band_factor(buf, off, ldab, m, kl, ku, ipiv, iw):
+    """dgbtrf on the Fortran-ordered band matrix buf[off: off + ldab m]; returns LAPACK's info."""
+    iw[0], iw[1], iw[2], iw[3], iw[4] = m, m, kl, ku, ldab
+    _dgbtrf(iw[0:].ctypes, iw[1:].ctypes, iw[2:].ctypes, iw[3:].ctypes, buf[off:].ctypes, iw[4:].ctypes,
+            ipiv.ctypes, iw[5:].ctypes)
+    return iw[5]
+
+
+@njit(cache=True)
+def _band_solve(buf, off, ldab, m, kl, ku, ipiv, rhs, rhs_off, nrhs, iw):
+    """dgbtrs: overwrite the Fortran-ordered (m, nrhs) block rhs[rhs_off:] with A^-1 rhs."""
+    iw[0], iw[1], iw[2], iw[3], iw[4], iw[6] = m, kl, ku, nrhs, ldab, m
+    trans = np.empty(1, np.uint8)
+    trans[0] = 78                 # "N"
+    _dgbtrs(trans.ctypes, iw[0:].ctypes, iw[1:].ctypes, iw[2:].ctypes, iw[3:].ctypes, buf[off:].ctypes,
+            iw[4:].ctypes, ipiv.ctypes, rhs[rhs_off:].ctypes, iw[6:].ctypes, iw[5:].ctypes)
+
+
+@njit(cache=True)
+def _arrow_factor(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc, cr_ptr, cr, D_off,
+                  nc, ipiv, piv_ptr, Y, Y_off, core_piv):
+    """Factor every chain block, form Y_i = A_i^-1 B_i, the Schur complement S = D - sum C_i Y_i and its LU.
+
+    Returns 0, i + 1 if chain block i is singular, or -1 if the Schur complement is."""
+    for s in range(buf.shape[0]):
+        buf[s] = 0.0
+    for s in range(data.shape[0]):
+        buf[dest[s]] = data[s]
+    iw = np.zeros(8, np.int32)
+    for i in range(ab_off.shape[0]):
+        m = ab_cols[i]
+        p = ipiv[piv_ptr[i]:piv_ptr[i] + m]
+        if _band_factor(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], p, iw) != 0:
+            return i + 1
+        ncc = cc_ptr[i + 1] - cc_ptr[i]
+        ncr = cr_ptr[i + 1] - cr_ptr[i]
+        y0 = Y_off[i]
+        for s in range(m * ncc):                                            # B_i, Fortran (m, ncc)
+            Y[y0 + s] = buf[B_off[i] + s]
+        if ncc:
+            _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], p, Y, y0, ncc, iw)
+        c0 = C_off[i]
+        for a in range(ncr):
+            row = cr[cr_ptr[i] + a]
+            for k in range(ncc):
+                col = cc[cc_ptr[i] + k]
+                acc = 0.0
+                for rr in range(m):
+                    acc += buf[c0 + a * m + rr] * Y[y0 + k * m + rr]
+                buf[D_off + row * nc + col] -= acc
+    # S is stored row-major, which LAPACK reads as S^T: factor S^T, solve with 'T'
+    iw[0], iw[1], iw[2] = nc, nc, nc
+    _dgetrf(iw[0:].ctypes, iw[1:].ctypes, buf[D_off:].ctypes, iw[2:].ctypes, core_piv.ctypes, iw[5:].ctypes)
+    if iw[5] != 0:
+        return -1
+    return 0
+
+
+@njit(cache=True)
+def _arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr,
+                 Y, Y_off, core_piv, chain_dofs, core_dofs, b, x):
+    """Solve J x = b with the factors of :func:`_arrow_factor`."""
+    iw = np.zeros(8, np.int32)
+    rhs = np.empty(nc)
+    for k in range(nc):
+        rhs[k] = b[core_dofs[k]]
+    z = np.empty(chain_dofs.shape[0])
+    for i in range(ab_off.shape[0]):
+        m = ab_cols[i]
+        z0 = piv_ptr[i]
+        for k in range(m):
+            z[z0 + k] = b[chain_dofs[z0 + k]]
+        _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv[z0:z0 + m], z, z0, 1, iw)
+        c0 = C_off[i]
+        for a in range(cr_ptr[i + 1] - cr_ptr[i]):
+            acc = 0.0
+            for rr in range(m):
+                acc += buf[c0 + a * m + rr] * z[z0 + rr]
+            rhs[cr[cr_ptr[i] + a]] -= acc
+    iw[0], iw[1], iw[2], iw[3] = nc, 1, nc, nc
+    trans = np.empty(1, np.uint8)
+    trans[0] = 84                 # "T"
+    _dgetrs(trans.ctypes, iw[0:].ctypes, iw[1:].ctypes, buf[D_off:].ctypes, iw[2:].ctypes, core_piv.ctypes,
+            rhs.ctypes, iw[3:].ctypes, iw[5:].ctypes)
+    for k in range(nc):
+        x[core_dofs[k]] = rhs[k]
+    for i in range(ab_off.shape[0]):
+        m = ab_cols[i]
+        z0 = piv_ptr[i]
+        y0 = Y_off[i]
+        ncc = cc_ptr[i + 1] - cc_ptr[i]
+        for rr in range(m):
+            acc = z[z0 + rr]
+            for k in range(ncc):
+                acc -= Y[y0 + k * m + rr] * rhs[cc[cc_ptr[i] + k]]
+            x[chain_dofs[z0 + rr]] = acc
 
 
 class SparseLU:
@@ -78,129 +196,71 @@ class ArrowSolver:
             self.couple_rows.append(np.unique(pos[rows[(ro < 0) & (co == i)]]))
         # destination of every CSC slot in one flat buffer: [ab_0 | ab_1 | ... | B_0 | C_0 | ... | D]
         offset = 0
-        self._ab_shape, self._ab_off = [], []
+        ab_shape, ab_off = [], []
         for i, c in enumerate(chains):
-            ldab = 2 * self.kl[i] + self.ku[i] + 1
-            self._ab_shape.append((ldab, len(c)))
-            self._ab_off.append(offset)
+            ldab = 2 * self.kl[i] + self.ku[i] + 1        # LAPACK band storage with kl rows of fill-in space
+            ab_shape.append((ldab, len(c)))
+            ab_off.append(offset)
             offset += ldab * len(c)
-        self._B_off, self._C_off = [], []
+        B_off, C_off = [], []
         for i, c in enumerate(chains):
-            self._B_off.append(offset)
+            B_off.append(offset)
             offset += len(c) * len(self.couple_cols[i])
-            self._C_off.append(offset)
+            C_off.append(offset)
             offset += len(self.couple_rows[i]) * len(c)
         nc = len(core)
-        self._D_off = offset
+        D_off = offset
         offset += nc * nc
-        self.size = offset
         dest = np.empty(pattern.nnz, dtype=np.int64)
         r_pos, c_pos = pos[rows], pos[cols]
         for i in range(len(chains)):
             kl, ku = self.kl[i], self.ku[i]
-            ldab = self._ab_shape[i][0]
-            m = (ro == i) & (co == i)        # banded storage (Fortran order): A[r, c] -> ab[kl + ku + r - c, c]
-            dest[m] = self._ab_off[i] + c_pos[m] * ldab + (kl + ku + r_pos[m] - c_pos[m])
-            m = (ro == i) & (co < 0)         # B_i: (chain rows) x (coupled core columns), row-major
-            k = np.searchsorted(self.couple_cols[i], c_pos[m])
-            dest[m] = self._B_off[i] + r_pos[m] * len(self.couple_cols[i]) + k
-            m = (ro < 0) & (co == i)         # C_i: (coupled core rows) x (chain columns)
-            k = np.searchsorted(self.couple_rows[i], r_pos[m])
-            dest[m] = self._C_off[i] + k * len(chains[i]) + c_pos[m]
-        m = (ro < 0) & (co < 0)
-        dest[m] = self._D_off + r_pos[m] * nc + c_pos[m]
+            ldab, m = ab_shape[i]
+            sel = (ro == i) & (co == i)      # band storage (Fortran order): A[r, c] -> ab[kl + ku + r - c, c]
+            dest[sel] = ab_off[i] + c_pos[sel] * ldab + (kl + ku + r_pos[sel] - c_pos[sel])
+            sel = (ro == i) & (co < 0)       # B_i: (chain rows) x (coupled core columns), Fortran order
+            k = np.searchsorted(self.couple_cols[i], c_pos[sel])
+            dest[sel] = B_off[i] + k * m + r_pos[sel]
+            sel = (ro < 0) & (co == i)       # C_i: (coupled core rows) x (chain columns), row-major
+            k = np.searchsorted(self.couple_rows[i], r_pos[sel])
+            dest[sel] = C_off[i] + k * m + c_pos[sel]
+        sel = (ro < 0) & (co < 0)
+        dest[sel] = D_off + r_pos[sel] * nc + c_pos[sel]
         self.dest = dest
-        self._factors = None
-        # flat arrays for the compiled path
+        i64 = lambda v: np.array(v, np.int64)   # noqa: E731
+        self._piv_ptr = np.cumsum([0] + [len(c) for c in self.chains]).astype(np.int64)
+        self._Y_off = np.cumsum([0] + [len(c) * len(cc) for c, cc in zip(chains, self.couple_cols)]).astype(np.int64)
         self._k = dict(
-            ab_off=np.array(self._ab_off, np.int64), ab_rows=np.array([s[0] for s in self._ab_shape], np.int64),
-            ab_cols=np.array([s[1] for s in self._ab_shape], np.int64), kl=np.array(self.kl, np.int64),
-            ku=np.array(self.ku, np.int64), B_off=np.array(self._B_off, np.int64),
-            C_off=np.array(self._C_off, np.int64),
+            ab_off=i64(ab_off), ab_rows=i64([s[0] for s in ab_shape]), ab_cols=i64([s[1] for s in ab_shape]),
+            kl=i64(self.kl), ku=i64(self.ku), C_off=i64(C_off),
             cc_ptr=np.cumsum([0] + [len(c) for c in self.couple_cols]).astype(np.int64),
             cc=np.concatenate(self.couple_cols).astype(np.int64),
             cr_ptr=np.cumsum([0] + [len(c) for c in self.couple_rows]).astype(np.int64),
-            cr=np.concatenate(self.couple_rows).astype(np.int64))
-        # start of chain i in any per-chain-DOF concatenation: the chain DOFs and the band pivots alike
-        self._chain_ptr = np.cumsum([0] + [len(c) for c in self.chains]).astype(np.int64)
-        self._Y_off = np.cumsum([0] + [len(c) * len(cc) for c, cc in zip(chains, self.couple_cols)]).astype(np.int64)
+            cr=np.concatenate(self.couple_rows).astype(np.int64), D_off=D_off, nc=nc)
+        self._B_off = i64(B_off)
         self._chain_dofs = np.concatenate(self.chains).astype(np.int64)
-        self.compiled = kernels.AVAILABLE
+        self._core = core.astype(np.int64)
+        self._buf = np.zeros(offset)
+        self._ipiv = np.zeros(self._piv_ptr[-1], np.int32)
+        self._Y = np.zeros(self._Y_off[-1])
+        self._core_piv = np.zeros(nc, np.int32)
 
     def factor(self, data: np.ndarray) -> None:
-        if self.compiled:
-            return self._factor_compiled(data)
-        return self._factor_lapack(data)
-
-    def _factor_compiled(self, data: np.ndarray) -> None:
-        buf = np.zeros(self.size)
-        buf[self.dest] = data
-        ipiv = np.empty(self._chain_ptr[-1], np.int64)
-        Y = np.empty(self._Y_off[-1])
         k = self._k
-        bad = kernels.arrow_factor(buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["B_off"],
-                                   k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], self._D_off,
-                                   len(self.core), ipiv, self._chain_ptr, Y, self._Y_off)
-        if bad:
+        bad = _arrow_factor(data, self.dest, self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"],
+                            self._B_off, k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"],
+                            self._ipiv, self._piv_ptr, self._Y, self._Y_off, self._core_piv)
+        if bad > 0:
             raise SingularJacobian(f"flagellum block {bad - 1} is singular")
-        nc = len(self.core)
-        core_piv = np.empty(nc, np.int64)
-        if kernels.getrf(buf[self._D_off:self._D_off + nc * nc].reshape(nc, nc), core_piv):
+        if bad < 0:
             raise SingularJacobian("core Schur complement is singular")
-        self._compiled_factors = (buf, ipiv, Y, core_piv)
-
-    def _solve_compiled(self, b: np.ndarray) -> np.ndarray:
-        buf, ipiv, Y, core_piv = self._compiled_factors
-        k = self._k
-        x = np.empty(self.ndof)
-        kernels.arrow_solve(buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
-                            k["cc"], k["cr_ptr"], k["cr"], self._D_off, len(self.core), ipiv, self._chain_ptr, Y,
-                            self._Y_off, core_piv, self._chain_dofs, self._chain_ptr, self.core, b, x)
-        return x
-
-    def _factor_lapack(self, data: np.ndarray) -> None:
-        buf = np.zeros(self.size)
-        buf[self.dest] = data
-        nc = len(self.core)
-        S = buf[self._D_off:self._D_off + nc * nc].reshape(nc, nc)
-        factors = []
-        for i, c in enumerate(self.chains):
-            ldab, m = self._ab_shape[i]
-            ab = buf[self._ab_off[i]:self._ab_off[i] + ldab * m].reshape((ldab, m), order="F")
-            lu, piv, info = lapack.dgbtrf(ab, self.kl[i], self.ku[i], overwrite_ab=1)
-            if info != 0:
-                raise SingularJacobian(f"flagellum block {i} is singular (dgbtrf info {info})")
-            cc, cr = self.couple_cols[i], self.couple_rows[i]
-            B = buf[self._B_off[i]:self._B_off[i] + m * len(cc)].reshape(m, len(cc))
-            C = buf[self._C_off[i]:self._C_off[i] + len(cr) * m].reshape(len(cr), m)
-            Y, info = lapack.dgbtrs(lu, self.kl[i], self.ku[i], B, piv)      # A_i^-1 B_i
-            S[np.ix_(cr, cc)] -= C @ Y
-            factors.append((lu, piv, C, Y))
-        try:
-            S_lu = sla.lu_factor(S, check_finite=False)
-        except (ValueError, sla.LinAlgError) as exc:
-            raise SingularJacobian(str(exc)) from None
-        if np.any(np.diag(S_lu[0]) == 0.0):
-            raise SingularJacobian("core Schur complement is singular")
-        self._factors = (factors, S_lu)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        if self.compiled:
-            return self._solve_compiled(b)
-        factors, S_lu = self._factors
+        k = self._k
         x = np.empty(self.ndof)
-        rhs_core = b[self.core].copy()
-        zs = []
-        for i, c in enumerate(self.chains):
-            lu, piv, C, Y = factors[i]
-            z, _ = lapack.dgbtrs(lu, self.kl[i], self.ku[i], b[c], piv)
-            rhs_core[self.couple_rows[i]] -= C @ z
-            zs.append(z)
-        xc = sla.lu_solve(S_lu, rhs_core, check_finite=False)
-        x[self.core] = xc
-        for i, c in enumerate(self.chains):
-            lu, piv, C, Y = factors[i]
-            x[c] = zs[i] - Y @ xc[self.couple_cols[i]]
+        _arrow_solve(self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
+                     k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"], self._ipiv, self._piv_ptr, self._Y,
+                     self._Y_off, self._core_piv, self._chain_dofs, self._core, np.ascontiguousarray(b), x)
         return x
 
 

@@ -1,22 +1,21 @@
 """RobotModel: the rod network, its elastic springs and exactly the effects the scene lists.
 
-The model turns a trial configuration into the residual of the implicit-Euler equations of motion,
+The model turns a trial configuration into the residual of the equations of motion at the end of a step,
 
-    r(q) = grad E(q) - sum_effects F(q, q_old, v_old, dt)        (paper Eq. DER3D_EOM; inertia is an effect)
+    r(q) = grad E(q) - sum_effects F(q, v(q), a(q))        (paper Eq. DER3D_EOM; inertia is an effect)
 
-and its Jacobian J = Hess E - sum dF/dq on a sparse pattern fixed at construction. It knows nothing about time
-stepping; the :class:`~flagbot_sim.physics.stepper.Stepper` knows nothing about which effects exist.
+and its Jacobian J = Hess E - sum dF/dq on a sparse pattern fixed at construction. The time integrator decides
+how the trial velocity v and acceleration a depend on q (a :class:`StepPlan`); the model knows nothing about
+time stepping, and the :class:`~flagbot_sim.physics.stepper.Stepper` knows nothing about which effects exist.
 """
 from __future__ import annotations
 
-import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene import Scene
 from .assembly import SparsePattern
-from .effects import (Clamp, Effect, Gravity, HeadDrag, HeadTorque, Inertia, Motor, RFTDrag, StepContext)
+from .effects import EFFECT_TYPES, Driver, Effect, StepContext
 from .elastic import ElasticModel
 from .frames import EdgeFrames
 from .network import RodNetwork, build_network
@@ -24,38 +23,44 @@ from .network import RodNetwork, build_network
 
 @dataclass
 class State:
-    """Everything needed to continue a simulation: DOFs, velocities, committed frames, driver angles."""
+    """Everything needed to continue a simulation: time, DOFs, velocities, committed frames, drive angle, and
+    the step before (for the predictor and for multistep integrators)."""
     t: float
     q: np.ndarray
     v: np.ndarray
     frames: EdgeFrames
-    extras: dict = field(default_factory=dict)
-    # for the Newton predictor only: the sizes of the last two steps and the velocity of the one before
-    h: float = 0.0
-    h_prev: float = 0.0
+    drive_angle: float = 0.0      # the driver's integrated command (rad)
+    h: float = 0.0                # size of the step that led to this state (0: none yet)
+    h_prev: float = 0.0           # size of the step before that
+    q_prev: np.ndarray | None = None   # DOFs and velocities one step back
     v_prev: np.ndarray | None = None
 
     def copy(self) -> "State":
-        return State(self.t, self.q.copy(), self.v.copy(), self.frames.copy(), copy.deepcopy(self.extras), self.h,
-                     self.h_prev, None if self.v_prev is None else self.v_prev.copy())
+        return State(self.t, self.q.copy(), self.v.copy(), self.frames.copy(), self.drive_angle, self.h,
+                     self.h_prev, None if self.q_prev is None else self.q_prev.copy(),
+                     None if self.v_prev is None else self.v_prev.copy())
 
 
-def build_effects(scene: Scene, net: RodNetwork, elastic: ElasticModel) -> list[Effect]:
+@dataclass
+class StepPlan:
+    """One trial step from a committed state, as the integrator sets it up: the trial velocity and acceleration
+    are affine in the trial DOFs, v = dv_dq q + v0 and a = da_dq q + a0, and the driver's angle at the end."""
+    h: float
+    t: float
+    dv_dq: float
+    v0: np.ndarray
+    da_dq: float
+    a0: np.ndarray
+    drive_angle: float
+
+
+def build_effects(scene, net: RodNetwork, elastic: ElasticModel) -> list[Effect]:
     """Construct exactly the effects listed in ``scene.effects``, in that order."""
-    makers = {
-        "inertia": lambda: Inertia(net),
-        "gravity": lambda: Gravity(net, scene.gravity.g),
-        "rft": lambda: RFTDrag(net, scene.eta_t, scene.eta_p),
-        "head_drag": lambda: HeadDrag(net, scene.head_drag_coefficient),
-        "head_torque": lambda: HeadTorque(net, scene.head_torque_coefficient),
-        "motor": lambda: Motor(net, elastic, scene.omega_T),
-        "clamp": lambda: Clamp(net, elastic, scene.omega_T),
-    }
-    return [makers[name]() for name in scene.effects]
+    return [EFFECT_TYPES[name].from_scene(scene, net, elastic) for name in scene.effects]
 
 
 class RobotModel:
-    def __init__(self, scene: Scene):
+    def __init__(self, scene):
         self.scene = scene
         self.net = build_network(scene)
         self.elastic = ElasticModel(self.net)
@@ -63,14 +68,25 @@ class RobotModel:
         self.ndof = self.net.ndof
         blocks = [(self.elastic.stretch_dofs, self.elastic.stretch_dofs),
                   (self.elastic.hinge_dofs, self.elastic.hinge_dofs)]
-        self._effect_block_range = []
+        ranges = []
         for eff in self.effects:
             b = eff.blocks()
-            self._effect_block_range.append((len(blocks), len(blocks) + len(b)))
+            ranges.append((len(blocks), len(blocks) + len(b)))
             blocks.extend(b)
         self.pattern = SparsePattern(self.ndof, blocks)
         self.elastic.set_slots(self.pattern.slots[0], self.pattern.slots[1])
-        self.drivers = [e for e in self.effects if type(e).begin_step is not Effect.begin_step]
+        for eff, (b0, b1) in zip(self.effects, ranges):
+            eff.bind(self.pattern.slots[b0:b1])
+        drivers = [e for e in self.effects if isinstance(e, Driver)]
+        if len(drivers) > 1:
+            raise ValueError(f"a scene can have one driver, got {[d.name for d in drivers]}")
+        #: the effect that takes the speed command (motor or clamp), or None
+        self.driver: Driver | None = drivers[0] if drivers else None
+        self.twist_hinge = self.driver.twist_hinge if self.driver is not None else -1
+        self._prescribers = [e for e in self.effects if len(e.prescribed_dofs)]
+        fixed = [e.prescribed_dofs for e in self._prescribers]
+        #: DOFs prescribed by an effect (the clamp): held at its values, their residual rows are identity rows
+        self.prescribed_dofs = np.unique(np.concatenate(fixed)) if fixed else np.zeros(0, np.int64)
         # residual scaling: torques on twist DOFs are divided by a length to compare with forces
         fl = scene.flagellum
         self.length_scale = fl.length / max(1, round(fl.length / fl.edge_length))
@@ -89,65 +105,44 @@ class RobotModel:
     def effect_names(self) -> list[str]:
         return [e.name for e in self.effects]
 
-    @property
-    def driver(self) -> Effect | None:
-        """The effect that takes the speed command (motor, or clamp), if any."""
-        return self.effect("motor") or self.effect("clamp")
-
     # ------------------------------------------------------------------ state
     def initial_state(self) -> State:
         q = self.net.initial_q()
-        extras = {}
-        for e in self.effects:
-            extras.update(e.initial_state())
-        st = State(0.0, q, np.zeros_like(q), self.elastic.frames0.copy(), extras)
-        self.restore(st)
-        return st
+        return State(0.0, q, np.zeros_like(q), self.elastic.frames0.copy(), 0.0)
 
-    def restore(self, state: State) -> None:
-        """Bring effect-held quantities (motor natural twist) in line with a committed state."""
-        for e in self.effects:
-            if hasattr(e, "restore"):
-                e.restore(state)
+    def prescribe(self, q: np.ndarray, state: State, angle: float) -> None:
+        """Set the prescribed DOFs of q to their values at drive angle ``angle`` (a step from ``state``)."""
+        for e in self._prescribers:
+            q[e.prescribed_dofs] = e.prescribed_values(state, angle)
 
     # ------------------------------------------------------------------ evaluation
-    def context(self, q: np.ndarray, state: State, dt: float) -> StepContext:
+    def context(self, q: np.ndarray, state: State, plan: StepPlan) -> StepContext:
         N = self.net.n_nodes
-        return StepContext(q=q, q_old=state.q, v_old=state.v, dt=dt, t_new=state.t + dt,
-                           x=q[: 3 * N].reshape(N, 3), x_old=state.q[: 3 * N].reshape(N, 3),
+        v = plan.dv_dq * q + plan.v0
+        return StepContext(q=q, x=q[: 3 * N].reshape(N, 3), v=v, a=plan.da_dq * q + plan.a0, dv_dq=plan.dv_dq,
+                           da_dq=plan.da_dq, t=plan.t, h=plan.h, drive_angle=plan.drive_angle,
                            frames=self.elastic.trial_frames(q, state.frames))
 
-    def residual(self, q: np.ndarray, state: State, dt: float, ctx: StepContext | None = None) -> np.ndarray:
-        ctx = ctx or self.context(q, state, dt)
-        idx, val = [], []
+    def residual(self, ctx: StepContext) -> np.ndarray:
+        r = np.zeros(self.ndof)
         for eff in self.effects:
-            f = eff.force(ctx)
-            if f is not None:
-                idx.append(np.ravel(f[0]))
-                val.append(-np.ravel(f[1]))
-        r = (np.bincount(np.concatenate(idx), weights=np.concatenate(val), minlength=self.ndof) if idx
-             else np.zeros(self.ndof))
-        self.elastic.accumulate(q, ctx.frames, r, None)
+            eff.add_force(ctx, r)
+        self.elastic.accumulate(ctx.q, ctx.frames, r, None, self.twist_hinge, ctx.drive_angle)
         return r
 
-    def residual_and_jacobian(self, q: np.ndarray, state: State, dt: float, ctx: StepContext | None = None):
-        """Residual vector and CSC data of the Jacobian (on ``self.pattern``) at the trial q.
+    def jacobian(self, ctx: StepContext) -> np.ndarray:
+        """CSC data of the Jacobian (on ``self.pattern``) at the context's trial configuration."""
+        J = np.zeros(self.pattern.nnz)
+        for eff in self.effects:
+            eff.add_jacobian(ctx, J)
+        self.elastic.accumulate(ctx.q, ctx.frames, np.zeros(self.ndof), J, self.twist_hinge, ctx.drive_angle)
+        return J
 
-        ``ctx`` is the context of this q (from :meth:`context`) if the caller already has it."""
-        if ctx is None:
-            ctx = self.context(q, state, dt)
-        idx, val = [], []
-        jac_values: list = [None, None]          # elastic blocks are added by the elastic model below
-        for eff, (b0, b1) in zip(self.effects, self._effect_block_range):
-            fi, fv, jv = eff.force_and_jacobian(ctx)
-            if fi is not None:
-                idx.append(np.ravel(fi))
-                val.append(-np.ravel(fv))
-            for j in jv:
-                jac_values.append(-np.asarray(j))
-            jac_values.extend([None] * (b1 - b0 - len(jv)))
-        r = (np.bincount(np.concatenate(idx), weights=np.concatenate(val), minlength=self.ndof) if idx
-             else np.zeros(self.ndof))
-        data = self.pattern.assemble(jac_values)
-        self.elastic.accumulate(q, ctx.frames, r, data)
-        return r, data, ctx
+    def residual_and_jacobian(self, ctx: StepContext) -> tuple[np.ndarray, np.ndarray]:
+        r = np.zeros(self.ndof)
+        J = np.zeros(self.pattern.nnz)
+        for eff in self.effects:
+            eff.add_force(ctx, r)
+            eff.add_jacobian(ctx, J)
+        self.elastic.accumulate(ctx.q, ctx.frames, r, J, self.twist_hinge, ctx.drive_angle)
+        return r, J

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..scene import Scene
 
 
 @dataclass
@@ -127,7 +126,7 @@ def flagellum_edge_count(length: float, edge_length: float) -> int:
     return max(1, int(round(length / edge_length)))
 
 
-def build_network(scene: Scene) -> RodNetwork:
+def build_network(scene) -> RodNetwork:
     """Build the robot (or, for a clamp scene, the driven plate + one flagellum) described by ``scene``."""
     fl = scene.flagellum
     E = fl.youngs_modulus

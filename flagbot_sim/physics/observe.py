@@ -1,4 +1,4 @@
-"""Derived quantities: head pose, spin angles and rates, speed, flagellum centrelines, steady-state estimates.
+"""What is observed of the robot: one :class:`Snapshot` per state, windowed rates, and one steady-state rule.
 
 Conventions (see docs/physics.md):
 
@@ -10,15 +10,29 @@ Conventions (see docs/physics.md):
 
 Spin angles are accumulated step by step from the twist DOF increment plus the (small) rotation of the
 time-parallel-transported reference frame about the axis, so they never alias, even at large dt.
+
+Memory is bounded: the history behind the windowed rates holds only the last few windows, at most one sample
+per ``window / 2048`` of simulated time (every step at the paper's dt), so a run of hours costs what a run of
+seconds does.
 """
 from __future__ import annotations
 
 import math
+from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import material_frames, normalize, signed_angle
+from .. import world
+from .frames import angle3, material3
 from .model import RobotModel, State
+
+#: |v| below this (m/s) is "not moving": its relative change is not meaningful
+V_FLOOR = 1.0e-9
+#: history kept behind the windowed rates, in windows
+KEEP_WINDOWS = 4
+#: history samples per window at most
+SAMPLES_PER_WINDOW = 2048
 
 
 def quaternion_from_matrix(R: np.ndarray) -> np.ndarray:
@@ -40,28 +54,65 @@ def quaternion_from_matrix(R: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-class Observer:
-    """Accumulates spin angles and positions step by step; answers instantaneous and windowed rates."""
+def rotation_vector(R: np.ndarray) -> np.ndarray:
+    """Rotation vector (log map) of a rotation matrix, robust near zero angle."""
+    c = min(1.0, max(-1.0, (np.trace(R) - 1.0) / 2.0))
+    angle = math.acos(c)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return (0.5 if angle < 1e-8 else angle / (2.0 * math.sin(angle))) * w
 
-    def __init__(self, model: RobotModel, state: State):
+
+@dataclass(frozen=True)
+class Snapshot:
+    """The one observation of the robot at a state, in the fixed frame (``world``: REP 103, x forward, origin at
+    the head centre at rest). Everything the ROS node publishes, a recording replays and a CSV writes."""
+    t: float                      # simulated time (s)
+    position: np.ndarray          # head centre (m), fixed frame
+    orientation: np.ndarray       # head body orientation, quaternion (x, y, z, w), fixed frame
+    velocity: np.ndarray          # head-centre velocity over the last step (m/s), fixed frame
+    angular_velocity: np.ndarray  # head body angular velocity over the last step (rad/s), fixed frame
+    phi_h: float                  # accumulated head spin angle (rad)
+    phi_t: float                  # accumulated flagella spin angle (rad)
+    omega_h: float                # head spin rate over the last step (rad/s)
+    omega_t: float                # flagella spin rate over the last step (rad/s)
+    v: float                      # forward speed over the last step (m/s, positive = head first)
+    drive_angle: float            # integrated drive command (rad)
+    omega_T: float                # drive command in force (rad/s)
+    motor_torque: float           # torque of the motor on the shaft (N m); 0 without a motor
+
+    def values(self) -> np.ndarray:
+        """Every number of the snapshot as one vector (to check them all for finiteness at once)."""
+        return np.concatenate([self.position, self.orientation, self.velocity, self.angular_velocity,
+                               [self.t, self.phi_h, self.phi_t, self.omega_h, self.omega_t, self.v,
+                                self.drive_angle, self.omega_T, self.motor_torque]])
+
+    def is_finite(self) -> bool:
+        return bool(np.all(np.isfinite(self.values())))
+
+
+class Observer:
+    """Accumulates spin angles step by step; answers instantaneous and windowed rates over a bounded history."""
+
+    def __init__(self, model: RobotModel, state: State, window: float):
         self.model = model
         self.net = model.net
         self.has_head = len(self.net.head_nodes) > 0
         self.clamped = model.scene.clamped
+        self.window = float(window)
+        self.origin = self.position(state).copy()
         self.reset(state)
 
     def reset(self, state: State) -> None:
         self.phi_h = 0.0
         self.phi_t = 0.0
-        self.t = [state.t]
-        self.hist_phi_h = [0.0]
-        self.hist_phi_t = [0.0]
-        self.hist_pos = [self.position(state).copy()]
-        self.hist_tip = [self.corotating_tip(state)] if self.clamped else []
         self.rate_h = 0.0      # instantaneous (last step) rates, rad/s
         self.rate_t = 0.0
         self.speed = 0.0
         self.axis_now = self.axis(state)
+        self._pos = self.position(state).copy()
+        self._hist: deque = deque()
+        self._spacing = self.window / SAMPLES_PER_WINDOW
+        self._append(state.t)
 
     # ---------------------------------------------------------------- geometry of one state
     def x(self, state: State) -> np.ndarray:
@@ -73,8 +124,8 @@ class Observer:
         if not self.has_head:
             return np.array([1.0, 0.0, 0.0])
         x = self.x(state)
-        a, _ = normalize(x[self.net.head_nodes[2]] - x[self.net.head_nodes[0]])
-        return a
+        a = x[self.net.head_nodes[2]] - x[self.net.head_nodes[0]]
+        return a / np.linalg.norm(a)
 
     def position(self, state: State) -> np.ndarray:
         x = self.x(state)
@@ -82,14 +133,12 @@ class Observer:
 
     def _spin_increment(self, edge: int, old: State, new: State, axis: np.ndarray) -> float:
         k = 3 * self.net.n_nodes + edge
-        dtheta = new.q[k] - old.q[k]
-        dref = signed_angle(old.frames.d1[edge][None], new.frames.d1[edge][None], axis[None])[0]
-        return float(dtheta + dref)
+        u, w = old.frames.d1[edge], new.frames.d1[edge]
+        return float(new.q[k] - old.q[k] + angle3(u[0], u[1], u[2], w[0], w[1], w[2], axis[0], axis[1], axis[2]))
 
     def corotating_tip(self, state: State) -> np.ndarray:
         """Tip of the (first) flagellum in the frame turning with the clamp: clamp at (0, R_d, 0)."""
-        phi = state.extras.get("clamp_angle", 0.0)
-        c, s = math.cos(phi), math.sin(phi)
+        c, s = math.cos(state.drive_angle), math.sin(state.drive_angle)
         R_inv = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
         return R_inv @ self.x(state)[self.net.flagella_nodes[0][-1]]
 
@@ -99,9 +148,9 @@ class Observer:
             return np.eye(3)
         e = self.net.head_edge
         fr = state.frames
-        theta = state.q[3 * self.net.n_nodes + e]
-        m1, m2 = material_frames(fr.d1[e][None], fr.d2[e][None], np.array([theta]))
-        return np.column_stack([fr.t[e], m1[0], m2[0]])
+        d1, d2 = fr.d1[e], fr.d2[e]
+        m = material3(d1[0], d1[1], d1[2], d2[0], d2[1], d2[2], state.q[3 * self.net.n_nodes + e])
+        return np.column_stack([fr.t[e], m[:3], m[3:]])
 
     # ---------------------------------------------------------------- per step
     def record(self, old: State, new: State) -> None:
@@ -112,64 +161,154 @@ class Observer:
             dtt = self._spin_increment(self.net.shaft_edge, old, new, a)
         elif self.clamped:
             dh = 0.0
-            dtt = new.extras["clamp_angle"] - old.extras["clamp_angle"]
+            dtt = new.drive_angle - old.drive_angle
         else:
             dh = dtt = 0.0
         self.phi_h += dh
         self.phi_t += dtt
-        pos = self.position(new).copy()
+        pos = self.position(new)
         self.rate_h = dh / dt
         self.rate_t = dtt / dt
-        self.speed = float(np.dot(pos - self.hist_pos[-1], -a)) / dt
+        self.speed = float(np.dot(pos - self._pos, -a)) / dt
+        self._pos = pos.copy()
         self.axis_now = a
-        self.t.append(new.t)
-        self.hist_phi_h.append(self.phi_h)
-        self.hist_phi_t.append(self.phi_t)
-        self.hist_pos.append(pos)
-        if self.clamped:
-            self.hist_tip.append(self.corotating_tip(new))
+        self._append(new.t, new)
+
+    def _append(self, t: float, state: State | None = None) -> None:
+        tip = self.corotating_tip(state) if (self.clamped and state is not None) else np.zeros(3)
+        sample = (t, self.phi_h, self.phi_t, self._pos.copy(), tip)
+        h = self._hist
+        if len(h) >= 2 and t - h[-2][0] < self._spacing:
+            h[-1] = sample              # too close to the sample before: the newest state replaces the last one
+        else:
+            h.append(sample)
+        horizon = t - KEEP_WINDOWS * self.window
+        while len(h) > 2 and h[1][0] <= horizon:
+            h.popleft()
+
+    @property
+    def t_now(self) -> float:
+        return self._hist[-1][0]
+
+    @property
+    def t_first(self) -> float:
+        return self._hist[0][0]
+
+    def _at(self, t: float):
+        """(phi_h, phi_t, position, tip) at time t by linear interpolation in the history (None if outside)."""
+        h = self._hist
+        if t < h[0][0] - 1e-12 or t > h[-1][0] + 1e-12:
+            return None
+        lo, hi = 0, len(h) - 1
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if h[mid][0] <= t:
+                lo = mid
+            else:
+                hi = mid
+        a, b = h[lo], h[hi]
+        if b[0] <= a[0] or t <= a[0]:
+            return a[1:]
+        if t >= b[0]:
+            return b[1:]
+        f = (t - a[0]) / (b[0] - a[0])
+        return tuple(x + f * (y - x) for x, y in zip(a[1:], b[1:]))
 
     # ---------------------------------------------------------------- windows
     def window_rates(self, window: float, end_time: float | None = None) -> dict | None:
-        """Mean omega_h, omega_t, v over [end - window, end]; None if the history is shorter than the window."""
-        t = np.asarray(self.t)
-        t_end = t[-1] if end_time is None else end_time
-        i1 = int(np.searchsorted(t, t_end, side="right") - 1)
-        i0 = int(np.searchsorted(t, t[i1] - window * (1 - 1e-9), side="right") - 1)
-        if i0 < 0 or t[i1] - t[max(i0, 0)] < 0.999 * window or i1 <= i0:
+        """Mean omega_h, omega_t, v over [end - window, end]; None if the history does not cover the window."""
+        t1 = self.t_now if end_time is None else end_time
+        t0 = t1 - window
+        p1, p0 = self._at(t1), self._at(t0 + 1e-9 * window)
+        if p1 is None or p0 is None or window <= 0:
             return None
-        span = t[i1] - t[i0]
-        p0, p1 = self.hist_pos[i0], self.hist_pos[i1]
+        p0 = self._at(t0) or p0
         fwd = -self.axis_now
-        return {
-            "omega_h": (self.hist_phi_h[i1] - self.hist_phi_h[i0]) / span,
-            "omega_t": (self.hist_phi_t[i1] - self.hist_phi_t[i0]) / span,
-            "v": float(np.dot(p1 - p0, fwd)) / span,
-            "t0": float(t[i0]), "t1": float(t[i1]),
-        }
+        return {"omega_h": (p1[0] - p0[0]) / window, "omega_t": (p1[1] - p0[1]) / window,
+                "v": float(np.dot(p1[2] - p0[2], fwd)) / window, "t0": float(t0), "t1": float(t1)}
 
-    def steady_state(self, window: float, rtol: float) -> dict:
-        """Rates over the last window, and whether they changed less than rtol since the window before."""
-        last = self.window_rates(window)
-        if last is None:
-            span = self.t[-1] - self.t[0]
-            last = self.window_rates(span) if span > 0 else None
-            if last is None:
-                return {"omega_h": 0.0, "omega_t": 0.0, "v": 0.0, "steady": False, "window": 0.0}
-            last.update(steady=False, window=span)
-            return last
-        prev = self.window_rates(window, end_time=self.t[-1] - window)
-        steady = False
-        if self.clamped:
-            # the rates are imposed by the clamp: steadiness is the shape in the co-rotating frame
-            i0 = int(np.searchsorted(self.t, self.t[-1] - window * (1 - 1e-9), side="right") - 1)
-            if i0 >= 0 and self.t[-1] - self.t[i0] >= 0.999 * window:
-                drift = np.linalg.norm(self.hist_tip[-1] - self.hist_tip[i0])
-                steady = bool(drift < rtol * self.model.scene.flagellum.length)
-        elif prev is not None:
-            scale = max(abs(last["omega_h"]) + abs(last["omega_t"]), 1e-12)
-            dv = abs(last["v"] - prev["v"]) / max(abs(last["v"]), 1e-12)
-            dw = (abs(last["omega_h"] - prev["omega_h"]) + abs(last["omega_t"] - prev["omega_t"])) / scale
-            steady = bool(dw < rtol and (dv < rtol or abs(last["v"]) < 1e-9))
-        last.update(steady=steady, window=window)
-        return last
+    def tip_at(self, t: float) -> np.ndarray | None:
+        p = self._at(t)
+        return None if p is None else p[3]
+
+    def snapshot(self, state: State, prev: State | None, omega_T: float, motor_torque: float) -> Snapshot:
+        """The :class:`Snapshot` of ``state``; ``prev`` is the state one step before (None: none yet)."""
+        R = self.head_orientation(state)
+        v_sim = np.zeros(3)
+        w_sim = np.zeros(3)
+        if prev is not None and state.t > prev.t:
+            node = self.net.head_nodes[1] if self.has_head else self.net.joint_node
+            v_sim = state.v[3 * node: 3 * node + 3]
+            w_sim = rotation_vector(R @ self.head_orientation(prev).T) / (state.t - prev.t)
+        R_w = world.head_rotation_world(R)
+        return Snapshot(t=state.t, position=world.to_world(self.position(state), self.origin),
+                        orientation=quaternion_from_matrix(R_w), velocity=world.to_world(v_sim),
+                        angular_velocity=world.WORLD_FROM_SIM @ w_sim, phi_h=self.phi_h, phi_t=self.phi_t,
+                        omega_h=self.rate_h, omega_t=self.rate_t, v=self.speed, drive_angle=state.drive_angle,
+                        omega_T=omega_T, motor_torque=motor_torque)
+
+
+class SteadyDetector:
+    """The one steady-state rule, used by ``flagbot run``, the sweeps and the ROS node's diagnostics.
+
+    Every half window the observed quantities are sampled: for the free robot the mean omega_h and v over the
+    last window, for the clamped flagellum its tip in the co-rotating frame and the medium's axial force and
+    torque (Fx, Tx). Each quantity's change d_k over one window, relative to its size (v against
+    max(|v|, V_FLOOR); the tip against the flagellum length), must be below ``rtol``; and so must the distance
+    to the final value that the geometric extrapolation of successive window-to-window changes predicts,
+    |d_k| rho / (1 - rho) with rho = |d_k / d_{k-1}| (the tail of an exponential approach), wherever the
+    approach is clearly geometric (d_{k-1} > rtol / 10 and rho < 1). That second test makes "steady" mean
+    "within rtol of the final value" for slow relaxations, where consecutive windows agree to rtol long before
+    the value has arrived. Both must hold at ``confirm`` consecutive checks: one check can pass at the peak of a
+    start-up overshoot, where two windows straddling it have equal means.
+    """
+
+    #: largest rho / (1 - rho) the extrapolation uses (rho above 0.99: the approach is not yet geometric)
+    MAX_TAIL = 99.0
+
+    def __init__(self, window: float, rtol: float, confirm: int = 3):
+        self.window = float(window)
+        self.rtol = float(rtol)
+        self.confirm = int(confirm)
+        self.reset()
+
+    def reset(self, t0: float = 0.0) -> None:
+        """Start over at time t0 (checks at t0 + k window / 2)."""
+        self.samples: deque = deque(maxlen=5)     # (t, values, scales)
+        self.passed = 0
+        self.steady = False
+        self.changes = np.zeros(0)        # each quantity's relative change over the last window (last check)
+        self.change = math.nan            # the largest of them
+        self.tail = math.nan              # largest extrapolated relative distance to the final value
+        self.next_check = t0 + 0.5 * self.window
+
+    def due(self, t: float) -> bool:
+        return t >= self.next_check - 1e-9 * self.window
+
+    def update(self, t: float, values: np.ndarray, scales: np.ndarray) -> bool:
+        """Add the sample at check time t; return whether the run is steady now."""
+        self.next_check += 0.5 * self.window
+        self.samples.append((t, np.asarray(values, float), np.asarray(scales, float)))
+        s = self.samples
+        if len(s) < 3:
+            self.passed = 0
+            self.steady = False
+            return False
+        _, x2, scale = s[-1]
+        d = np.abs(x2 - s[-3][1]) / scale                 # change over one window, relative
+        self.changes = d
+        self.change = float(np.max(d))
+        factor = np.ones_like(d)
+        if len(s) >= 5:
+            d_prev = np.abs(s[-3][1] - s[-5][1]) / scale      # the window before
+            # only a clear, monotone approach is extrapolated: changes below rtol/10 are noise or the ripple
+            # of an oscillating approach, and a ratio >= 1 is no geometric tail at all
+            clear = d_prev > 0.1 * self.rtol
+            rho = np.where(clear, d / np.where(clear, d_prev, 1.0), 1.0)
+            factor = np.where(clear & (rho < 1.0), np.minimum(rho / np.maximum(1.0 - rho, 1e-12), self.MAX_TAIL),
+                              1.0)
+        self.tail = float(np.max(factor * d))
+        ok = self.change < self.rtol and self.tail < self.rtol
+        self.passed = self.passed + 1 if ok else 0
+        self.steady = self.passed >= self.confirm
+        return self.steady

@@ -1,4 +1,4 @@
-"""Simulation: one robot, its stepper, its observer; the object the CLI, the ROS node and the sweeps drive."""
+"""Simulation: one robot, its stepper, its observer; the facade the CLI, the ROS node and the sweeps drive."""
 from __future__ import annotations
 
 import math
@@ -7,28 +7,36 @@ from typing import Callable
 
 import numpy as np
 
-from ..scene import Scene
-from . import kernels
+from . import warmup
 from .model import RobotModel
-from .observe import Observer, quaternion_from_matrix
+from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector
 from .stepper import Stepper, StepStats
 
 
 class Simulation:
-    def __init__(self, scene: Scene):
+    def __init__(self, scene, steady_window: float | None = None, steady_rtol: float | None = None):
+        """``steady_window`` / ``steady_rtol``: the steady-state rule's window (s) and tolerance (default: the
+        scene's ``observe`` section)."""
+        #: time spent compiling (first run) or loading the kernels in this process: not simulation time
+        self.compile_seconds = warmup.ensure_compiled()
         self.scene = scene
         self.model = RobotModel(scene)
         self.stepper = Stepper(self.model)
         self.dt = scene.time.dt
         self.initial = self.model.initial_state()
         self.state = self.initial.copy()
-        self.observer = Observer(self.model, self.state)
+        ob = scene.observe
+        self.observer = Observer(self.model, self.state, steady_window or ob.steady_window)
+        self.steady_detector = SteadyDetector(steady_window or ob.steady_window, steady_rtol or ob.steady_rtol)
         self.last_stats = StepStats(dt_min=self.dt)
+        self._prev_state = None
+        self._zero_counters()
+
+    def _zero_counters(self) -> None:
         self.steps = 0
         self.newton_iterations = 0
         self.reductions = 0
         self.wall_seconds = 0.0
-        self._prev_state = self.state
 
     # ---------------------------------------------------------------- command
     @property
@@ -59,6 +67,8 @@ class Simulation:
         self.steps += 1
         self.newton_iterations += stats.newton_iterations
         self.reductions += stats.reductions
+        if self.steady_detector.due(new.t):
+            self.steady_detector.update(new.t, *self._steady_sample())
         return stats
 
     def run(self, duration: float, callback: Callable[["Simulation"], None] | None = None) -> None:
@@ -68,18 +78,23 @@ class Simulation:
             if callback is not None:
                 callback(self)
 
+    def run_until_steady(self, t_max: float, callback: Callable[["Simulation"], None] | None = None) -> bool:
+        """Step until the steady-state rule holds or the simulated time reaches t_max; True if steady."""
+        while not self.steady_detector.steady and self.time < t_max - 1e-9 * self.dt:
+            self.step()
+            if callback is not None:
+                callback(self)
+        return self.steady_detector.steady
+
     def reset(self) -> None:
+        """Back to the initial state with the scene's command; counters and steady-state rule start over."""
         self.state = self.initial.copy()
-        self._prev_state = self.state
-        self.model.restore(self.state)
-        for e in self.model.effects:
-            if e.name in ("motor", "clamp"):
-                e.omega = self.scene.omega_T
+        self._prev_state = None
+        if self.model.driver is not None:
+            self.model.driver.omega = self.scene.omega_T
         self.observer.reset(self.state)
-        self.steps = 0
-        self.newton_iterations = 0
-        self.reductions = 0
-        self.wall_seconds = 0.0
+        self.steady_detector.reset()
+        self._zero_counters()
 
     @property
     def time(self) -> float:
@@ -88,47 +103,29 @@ class Simulation:
     @property
     def motor_angle(self) -> float:
         """Integrated drive command (rad): the motor's natural-twist angle, or the clamp's rotation angle."""
-        return float(self.state.extras.get("motor_angle", self.state.extras.get("clamp_angle", 0.0)))
+        return float(self.state.drive_angle)
+
+    @property
+    def steady(self) -> bool:
+        return self.steady_detector.steady
 
     # ---------------------------------------------------------------- observations
+    def snapshot(self) -> Snapshot:
+        return self.observer.snapshot(self.state, self._prev_state, self.omega_T, self.motor_torque())
+
     def positions(self) -> np.ndarray:
         return self.observer.x(self.state)
-
-    def head_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """(position of the head centre x1 (m), orientation quaternion x, y, z, w)."""
-        pos = self.observer.position(self.state)
-        return pos.copy(), quaternion_from_matrix(self.observer.head_orientation(self.state))
-
-    def head_velocity(self) -> np.ndarray:
-        """Velocity of the head centre over the last step (m/s, simulation frame)."""
-        net = self.model.net
-        node = net.head_nodes[1] if len(net.head_nodes) else net.joint_node
-        return self.state.v[3 * node: 3 * node + 3].copy()
-
-    def head_angular_velocity(self) -> np.ndarray:
-        """Angular velocity of the head body over the last step (rad/s, simulation frame)."""
-        if self.steps == 0:
-            return np.zeros(3)
-        R0 = self.observer.head_orientation(self._prev_state)
-        R1 = self.observer.head_orientation(self.state)
-        dR = R1 @ R0.T
-        # rotation vector of dR (log map), robust near zero angle
-        c = np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0)
-        angle = math.acos(c)
-        w = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
-        scale = 0.5 if angle < 1e-8 else angle / (2.0 * math.sin(angle))
-        return scale * w / (self.state.t - self._prev_state.t)
 
     def motor_torque(self) -> float:
         """Torque the motor applies to the shaft (N m; positive drives a positive omega_T): the motor hinge's
         twisting moment. At steady state it equals the head's Stokes torque C2 8 pi mu R_h^3 omega_h."""
         net, el = self.model.net, self.model.elastic
-        if net.motor_hinge < 0:
+        h = net.motor_hinge
+        if h < 0:
             return 0.0
         fr = el.trial_frames(self.state.q, self.state.frames)
         _, _, tau = el.hinge_strains(self.state.q, fr)
-        h = net.motor_hinge
-        return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h]))
+        return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h] - self.state.drive_angle))
 
     def flagella_centrelines(self) -> list[np.ndarray]:
         x = self.positions()
@@ -149,26 +146,51 @@ class Simulation:
         return out
 
     def medium_force_on_flagella(self) -> tuple[np.ndarray, np.ndarray]:
-        """Total RFT force (N) and torque about the origin (N m) on the flagella over the last step."""
+        """Total RFT force (N) and torque about the origin (N m) on the flagella at the current state."""
         rft = self.model.effect("rft")
-        if rft is None or self.steps == 0:
+        if rft is None or self._prev_state is None:
             return np.zeros(3), np.zeros(3)
-        ctx = self.model.context(self.state.q, self._prev_state, self.state.t - self._prev_state.t)
-        F = rft.node_forces(ctx)
-        r = ctx.x[rft.k]
+        x = self.positions()
+        F = rft.node_forces(x, self.state.v)
+        r = x[rft.k]
         return F.sum(axis=0), np.cross(r, F).sum(axis=0)
 
     def clamp_frame_tip(self) -> np.ndarray:
         """Flagellum tip in the frame co-rotating with the clamp (clamp at (0, R_d, 0))."""
         return self.observer.corotating_tip(self.state)
 
+    def _steady_sample(self) -> tuple[np.ndarray, np.ndarray]:
+        """The quantities the steady-state rule watches, and their scales (see SteadyDetector)."""
+        if self.scene.clamped:
+            F, T = self.medium_force_on_flagella()
+            tip = self.clamp_frame_tip()
+            L = self.scene.flagellum.length
+            return (np.array([*tip, F[0], T[0]]),
+                    np.array([L, L, L, max(abs(F[0]), 1e-30), max(abs(T[0]), 1e-30)]))
+        r = self.observer.window_rates(self.steady_detector.window)
+        if r is None:
+            return np.array([math.nan, math.nan]), np.ones(2)
+        w_floor = max(1e-3 * abs(self.omega_T), 1e-12)
+        return (np.array([r["omega_h"], r["v"]]),
+                np.array([max(abs(r["omega_h"]), w_floor), max(abs(r["v"]), V_FLOOR)]))
+
     def steady_state(self) -> dict:
-        ob = self.scene.observe
-        return self.observer.steady_state(ob.steady_window, ob.steady_rtol)
+        """Rates over the last steady window (or over the whole run if shorter) and the steady-state verdict."""
+        window = self.steady_detector.window
+        last = self.observer.window_rates(window)
+        span = window
+        if last is None:
+            span = self.observer.t_now - self.observer.t_first
+            last = self.observer.window_rates(span) if span > 0 else None
+            if last is None:
+                return {"omega_h": 0.0, "omega_t": 0.0, "v": 0.0, "steady": False, "window": 0.0}
+        last.update(steady=self.steady, window=span)
+        return last
 
     def summary(self) -> dict:
         """Steady-state outputs and run statistics (SI units)."""
         ss = self.steady_state()
+        det = self.steady_detector
         out = {
             "scene": self.scene.scene.name,
             "n_flagella": self.scene.robot.n_flagella,
@@ -177,6 +199,7 @@ class Simulation:
             "omega_t": ss["omega_t"],
             "v": ss["v"],
             "steady": ss["steady"],
+            "steady_change": det.change,
             "window": ss["window"],
             "time": self.state.t,
             "steps": self.steps,
@@ -184,9 +207,15 @@ class Simulation:
             "dt_reductions": self.reductions,
             "wall_seconds": self.wall_seconds,
             "real_time_factor": self.state.t / self.wall_seconds if self.wall_seconds > 0 else None,
-            "kernels": "compiled" if kernels.AVAILABLE else "python",
+            "compile_seconds": self.compile_seconds,
+            "kernels": "python" if _jit_disabled() else "compiled",
         }
         if self.scene.clamped:
             F, T = self.medium_force_on_flagella()
             out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in self.clamp_frame_tip()])
         return out
+
+
+def _jit_disabled() -> bool:
+    from numba.core import config
+    return bool(config.DISABLE_JIT)

@@ -119,8 +119,16 @@ def help_text(prog: str, summary: str, specs: list[ParamSpec], topics: str = "")
     lines += [s.help_line() for s in specs]
     if topics:
         lines += ["", topics]
-    lines += ["", "Full interface (topics, units, frames, QoS, services): msg_docs/ in the package."]
+    lines += ["", f"Full interface (topics, units, frames, QoS, services): {msg_docs_dir()}/"]
     return "\n".join(lines)
+
+
+def msg_docs_dir() -> Path:
+    """msg_docs/ beside a source checkout, else where setup.py installs it: <prefix>/share/flagbot_sim/msg_docs
+    (the package itself sits in <prefix>/lib/pythonX.Y/site-packages/flagbot_sim, for pip and colcon alike)."""
+    pkg = Path(__file__).resolve().parents[1]
+    src = pkg.parent / "msg_docs"
+    return src if src.is_dir() else pkg.parents[3] / "share" / "flagbot_sim" / "msg_docs"
 
 
 def text_refusal(name: str, value, limit: int = MAX_STRING) -> str | None:

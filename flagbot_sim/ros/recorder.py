@@ -6,6 +6,10 @@ Two ways to use it:
   SIGINT/SIGTERM (then the file is closed with its summary and index) or ``--duration``;
 - inside an existing node (the sim_node's ``record`` parameter): ``Recorder(node, path, topics, metadata)``, then
   ``close()`` when done. It creates its subscriptions and one timer on that node and runs a small flush thread.
+  The constructor opens the file and writes (and flushes) its header and metadata first: a path that cannot be
+  created or written raises :class:`flagbot_sim.bag.BagWriteError` (an OSError and a BagError) before any ROS
+  entity exists, and leaves no file. Later write failures (disk full, file size limit) set :attr:`Recorder.error`
+  once and stop the recording; ``close()`` returns a summary whose ``error`` repeats it.
 
 Topics: the default list :data:`flagbot_sim.topics.DEFAULT_RECORD_TOPICS` (relative names resolved in the
 node's namespace), an explicit list, or :data:`ALL` (every topic visible in the graph). A topic is subscribed once
@@ -15,8 +19,10 @@ every publisher is (so latched messages are recorded too), else VOLATILE. Topics
 a graph poll every ``poll_period`` seconds.
 
 Timing: log time = the middleware's receive timestamp (system clock, like rosbag2), publish time = the header stamp
-of stamped types. Crash safety: the flush thread closes a chunk and flushes the file at least every
-``flush_interval`` (0.5 s), independently of the executor, so a SIGKILL loses at most that plus queued messages.
+of stamped types. Crash safety: the flush thread closes the chunk being filled and flushes the file when
+``flush_interval`` (0.1 s) has passed since the last flush, waking exactly then and independently of the executor
+(a long simulation step does not delay it), so a SIGKILL loses at most that interval plus what was still queued
+in the middleware (see docs/recording.md for the measured figures).
 """
 from __future__ import annotations
 
@@ -39,6 +45,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
                    WriteSummary, normalize_type, qos_to_yaml)
 from ..topics import DEFAULT_RECORD_TOPICS
+from .bag_args import add_record_arguments, console_main
 from .runtime import SLICE, release, ros_process
 
 #: pass as ``topics`` to record every topic visible in the graph
@@ -107,6 +114,8 @@ class Recorder:
         self.path = self.writer.path
         self._subs: dict[str, object] = {}
         self._mismatch_warned: set[str] = set()
+        self._error_reported = False
+        self._report_lock = threading.Lock()
         self._closed = False
         self._group = callback_group or MutuallyExclusiveCallbackGroup()
         # the poll follows wall time even when the node uses sim time (a paused /clock must not stop it)
@@ -126,7 +135,7 @@ class Recorder:
         return topic in self.wanted
 
     def _poll(self) -> None:
-        if self._closed:
+        if self._closed or self.error:
             return
         try:
             graph = self.node.get_topic_names_and_types()
@@ -165,18 +174,32 @@ class Recorder:
 
     def _on_message(self, topic: str, data: bytes, info) -> None:
         t = info.get("received_timestamp", 0) if isinstance(info, dict) else 0
-        if not self.writer.write(topic, data, t or time.time_ns()) and self.writer.error and not self._closed:
-            if topic not in self._mismatch_warned:
-                self._mismatch_warned.add(topic)
-                self.node.get_logger().error(f"recording stopped: {self.writer.error}; the file is readable up to "
-                                             f"the last flush (flagbot bag-recover)")
+        if not self.writer.write(topic, data, t or time.time_ns()) and self.writer.error:
+            self._report_error()
+
+    def _report_error(self) -> None:
+        """Log the first write failure, once (not once per message or topic)."""
+        with self._report_lock:
+            if self._error_reported or self._closed:
+                return
+            self._error_reported = True
+        self.node.get_logger().error(f"recording stopped: {self.writer.error}; the file is readable up to the "
+                                     f"last flush: flagbot bag-recover {self.path}")
 
     def _flush_loop(self) -> None:
-        period = min(0.1, self.writer.flush_interval / 4)
-        while not self._stop.wait(period):
+        # wake when the next flush is due, not on a fixed tick: the bound on crash loss is the flush interval
+        while not self._stop.wait(self.writer.seconds_to_flush()):
             self.writer.maybe_flush()
+            if self.writer.error:
+                self._report_error()
+                return
 
     # -- API
+    @property
+    def error(self) -> str:
+        """'' while every write succeeded; else the first write failure (set once, stays until closed)."""
+        return self.writer.error
+
     @property
     def recorded_topics(self) -> dict[str, str]:
         """topic -> type of every topic subscribed so far."""
@@ -281,7 +304,6 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``record`` console script: ``record [TOPIC ...] [-o out.mcap] [--all] ... [--ros-args ...]``."""
-    from ..bagtools import add_record_arguments, console_main
     return console_main("record", "Record flagbot topics to an MCAP file (rosbag2 layout).", add_record_arguments, run, argv)
 
 

@@ -29,6 +29,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from ..bag import BagError, BagReader, ScanReport
 from ..topics import CLOCK
+from .bag_args import add_replay_arguments, console_main
 from .recorder import message_class
 from .runtime import SLICE, release, ros_process
 
@@ -253,11 +254,18 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
     return 0
 
 
+def command(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
+    """A ROS replay, or with ``--resimulate`` (no ROS) a re-simulation of the recorded commands."""
+    if args.resimulate:
+        from ..resim import cmd_resimulate
+        return cmd_resimulate(args)
+    return run(args, ros_args=ros_args or ["replay"])
+
+
 def main(argv: list[str] | None = None) -> int:
     """``replay`` console script: ``replay BAG [--rate R] [--loop] [--topics ...] [--exclude ...] [--ros-args ...]``
     (``--resimulate``: no ROS, as ``flagbot replay --resimulate``)."""
-    from ..bagtools import add_replay_arguments, cmd_replay, console_main
-    return console_main("replay", "Replay an MCAP recording with its timing.", add_replay_arguments, cmd_replay, argv)
+    return console_main("replay", "Replay an MCAP recording with its timing.", add_replay_arguments, command, argv)
 
 
 if __name__ == "__main__":

@@ -422,12 +422,10 @@ class SimNode(Node):
     def _publish_state(self, force_markers: bool = False) -> None:
         sim, ob = self.sim, self.sim.observer
         t = self.sim_time
-        origin = ob.position(sim.initial)
-        pos_w = world.to_world(ob.position(sim.state), origin)
+        snap = sim.snapshot()
+        pos_w = snap.position
         R_w = world.head_rotation_world(ob.head_orientation(sim.state))
-        v_w = world.to_world(sim.head_velocity())
-        w_w = world.WORLD_FROM_SIM @ sim.head_angular_velocity()
-        torque = sim.motor_torque()
+        v_w, w_w, torque = snap.velocity, snap.angular_velocity, snap.motor_torque
         values = np.concatenate([pos_w, R_w.ravel(), v_w, w_w, [ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t,
                                                                ob.speed, torque]])
         if not np.all(np.isfinite(values)):     # the physics never returns NaN; refuse to pass one on anyway

@@ -88,11 +88,13 @@ def run_local(tasks: list[dict], workers: int) -> Iterator[dict]:
 
 
 def run_dask(tasks: list[dict], workers: int, scheduler: str | None) -> Iterator[dict]:
+    from ..optional import MissingExtra, require
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
-        from distributed import KilledWorker
-    except ImportError:
-        raise SweepError("--engine dask needs Dask distributed: pip install 'dask[distributed]'") from None
+        require("dask", "flagbot sweep --engine dask")
+    except MissingExtra as exc:
+        raise SweepError(str(exc)) from None
+    from dask.distributed import Client, LocalCluster, as_completed
+    from distributed import KilledWorker
     import logging
 
     cluster = None

@@ -4,12 +4,11 @@
 base scene's file data plus the point's overrides (so a remote Dask worker needs no scene file), and depends
 on nothing but the task: the same task gives bit-identical numbers in any process, in any order.
 
-DER steady state is *detected*: every half window the mean rates over the last window [t - w, t] are compared
-with those over [t - 2w, t - w]; the run is steady when omega_h and v both changed by less than ``rtol``
-(relative) at three consecutive checks, i.e. over a whole window of checks. A single check is not enough: while
-v passes through the maximum of its start-up overshoot (design 1 at high omega_T), two adjacent windows
-straddling the peak can have equal means. A run that reaches ``t_max`` first reports its last-window rates with
-``hit_cap = True``.
+DER steady state is *detected* by the one rule of :class:`flagbot_sim.physics.observe.SteadyDetector` (the
+same as ``flagbot run`` and the ROS node use): every half window the mean omega_h and v over the last window are
+compared with those one window earlier, and the run is steady when both changed by less than ``rtol``
+(relative), and their geometric extrapolation puts them within ``rtol`` of their final values, at three
+consecutive checks. A run that reaches ``t_max`` first reports its last-window rates with ``hit_cap = True``.
 """
 from __future__ import annotations
 
@@ -28,10 +27,8 @@ FRAMEWORKS = ("der", "lb", "nlb-nohead", "nlb")
 #: human names, as in the paper
 FRAMEWORK_LABELS = {"der": "DER", "lb": "LB", "nlb-nohead": "NLB w/o head", "nlb": "NLB"}
 
-#: consecutive passing checks (half a window apart) before a DER run counts as steady
+#: consecutive passing checks (half a window apart) before a DER run counts as steady (SteadyDetector's default)
 CONFIRM_CHECKS = 3
-#: |v| below this (m/s) is "not moving": its relative change is not meaningful
-V_FLOOR = 1.0e-9
 
 
 @dataclass(frozen=True)
@@ -67,54 +64,20 @@ def task_scene(task: dict) -> Scene:
     return scene_from_dict(task["scene_data"], source=task["source"], overrides=task["overrides"])
 
 
-def _steady_change(ob, window: float) -> tuple[float, float] | None:
-    """Relative changes of omega_h and v between the last two windows; None while the history is short."""
-    # Deliberately not Observer.steady_state's rule, which is one check of (|d omega_h| + |d omega_t|) /
-    # (|omega_h| + |omega_t|) and of v, with |v| < 1e-9 m/s passing outright. A sweep point is reported, so:
-    # one check can pass at a start-up overshoot peak (module docstring), hence CONFIRM_CHECKS passes in a row;
-    # v is measured against max(|v|, V_FLOOR) and a small v must be steady too, not waved through; and
-    # omega_h alone, relative to itself, is the rate the sweep reports (omega_t ~ omega_T - omega_h carries
-    # nothing new). With omega_h + omega_t ~ omega_T the observer's measure is ~ 2 |d omega_h| / omega_T, so this
-    # one is tighter on omega when omega_h < omega_T / 2 (design 2) and up to 2x looser when the head takes
-    # most of omega_T (design 1), where v settles far more slowly and decides anyway. The committed sweep
-    # results were made with this rule: do not change it to match the observer.
-    last = ob.window_rates(window)
-    prev = ob.window_rates(window, end_time=ob.t[-1] - window)
-    if last is None or prev is None:
-        return None
-    dw = abs(last["omega_h"] - prev["omega_h"]) / max(abs(last["omega_h"]), 1e-12)
-    dv = abs(last["v"] - prev["v"]) / max(abs(last["v"]), V_FLOOR)
-    return dw, dv
-
-
 def run_der(scene: Scene, settings: SteadySettings) -> dict:
     from ..physics import Simulation, StepFailed
 
     w0 = time.perf_counter()
     out = {"framework": "der", "error": "", "hit_cap": False, "converged": False}
-    sim = Simulation(scene)
+    sim = Simulation(scene, steady_window=settings.window, steady_rtol=settings.rtol)
     dt = scene.time.dt
-    n_max = max(1, int(math.ceil(settings.t_max / dt - 1e-9)))
-    check_every = max(1, int(round(0.5 * settings.window / dt)))
-    passed = 0
     try:
-        for k in range(1, n_max + 1):
-            sim.step()
-            if k % check_every == 0:
-                change = _steady_change(sim.observer, settings.window)
-                if change is not None and max(change) < settings.rtol:
-                    passed += 1
-                    if passed >= CONFIRM_CHECKS:
-                        out["converged"] = True
-                        break
-                else:
-                    passed = 0
-        else:
-            out["hit_cap"] = True
+        out["converged"] = sim.run_until_steady(settings.t_max)
+        out["hit_cap"] = not out["converged"]
     except StepFailed as exc:
         out["error"] = f"step failed at t = {sim.time:.4f} s: {exc}"
     rates = sim.observer.window_rates(settings.window) or sim.observer.window_rates(max(sim.time, dt))
-    change = _steady_change(sim.observer, settings.window)
+    changes = sim.steady_detector.changes          # omega_h, v: relative changes over the last window
     omega_T = scene.omega_T
     if rates is None:
         omega_h = omega_t = v = math.nan
@@ -123,7 +86,8 @@ def run_der(scene: Scene, settings: SteadySettings) -> dict:
     out.update(omega_h=omega_h, omega_t=omega_t, v=v, omega_T_bar=scene.normalise_omega(omega_T),
                omega_h_bar=scene.normalise_omega(omega_h), v_bar=scene.normalise_speed(v),
                w_tip_over_L=math.nan, steps=sim.steps, sim_time=sim.time,
-               change_omega_h=change[0] if change else math.nan, change_v=change[1] if change else math.nan,
+               change_omega_h=float(changes[0]) if len(changes) else math.nan,
+               change_v=float(changes[1]) if len(changes) else math.nan,
                wall_seconds=time.perf_counter() - w0)
     return out
 

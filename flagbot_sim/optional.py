@@ -1,0 +1,91 @@
+"""Optional extras: which module each pip extra brings, and the one-line message when it is missing.
+
+``pip install flagbot_sim`` installs what the simulator, the beam estimator, recordings and plots need
+(setup.py ``install_requires``). The rest is an extra, named in setup.py ``extras_require`` with the same keys as
+:data:`EXTRAS` (a test keeps the two in step):
+
+- ``ros``: the ROS 2 Jazzy wheels from PyPI. Not a plain requirement, because on a ROS install (apt / colcon,
+  ``source /opt/ros/jazzy/setup.bash``) rclpy comes from the ROS prefix, and pip must not pull a second rclpy
+  over it.
+- ``dask``: sweeps on a Dask distributed cluster; ``bench``: the PyElastica comparison; ``view``: Foxglove.
+
+Leaf module: imports nothing from the package, and the extras only when asked.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+from types import ModuleType
+
+#: extra -> (module that proves it is installed, what it is, how else to get it)
+EXTRAS = {
+    "ros": ("rclpy", "ROS 2 Jazzy (rclpy)", "source /opt/ros/jazzy/setup.bash, or "),
+    "dask": ("distributed", "Dask distributed", ""),
+    "bench": ("elastica", "PyElastica", ""),
+    "view": ("foxglove", "the Foxglove SDK", ""),
+}
+
+#: top-level modules that come with the ROS 2 install (or the ``ros`` extra's wheels)
+ROS_MODULES = frozenset({"rclpy", "rcl_interfaces", "builtin_interfaces", "ament_index_python", "std_msgs",
+                         "geometry_msgs", "sensor_msgs", "nav_msgs", "visualization_msgs", "rosgraph_msgs",
+                         "diagnostic_msgs", "std_srvs"})
+
+
+class MissingExtra(ImportError):
+    """An optional part is not installed; ``str()`` is the one-line message naming the extra."""
+
+    def __init__(self, extra: str, purpose: str):
+        module, what, other = EXTRAS[extra]
+        super().__init__(f"{purpose} needs {what}, which {sys.executable} cannot import: "
+                         f"{other}pip install 'flagbot_sim[{extra}]'", name=module)
+        self.extra = extra
+
+
+def require(extra: str, purpose: str, module: str | None = None) -> ModuleType:
+    """Import ``module`` (default: the extra's marker module) or raise :class:`MissingExtra` for ``purpose``."""
+    module = module or EXTRAS[extra][0]
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        # only the extra itself being absent is "missing"; an error inside an installed extra stays as it is
+        if exc.name is None or exc.name.split(".")[0] != module.split(".")[0]:
+            raise
+        raise MissingExtra(extra, purpose) from None
+
+
+def available(extra: str) -> bool:
+    """Whether the extra's marker module can be found (without importing it)."""
+    import importlib.util
+    return importlib.util.find_spec(EXTRAS[extra][0]) is not None
+
+
+def missing_ros(exc: ImportError, purpose: str) -> MissingExtra | None:
+    """The ``ros`` extra's MissingExtra when ``exc`` is ROS 2 itself being absent (rclpy, a message package),
+    else None: the caller re-raises anything else."""
+    if isinstance(exc, ModuleNotFoundError) and (exc.name or "").split(".")[0] in ROS_MODULES:
+        return MissingExtra("ros", purpose)
+    return None
+
+
+def ros_entry(module: str, prog: str):
+    """A console-script ``main`` for a ROS process: without ROS 2 it prints one line and exits 1 instead of a
+    traceback; otherwise it runs ``module.main``."""
+    def main() -> int:
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if (missing := missing_ros(exc, prog)) is None:
+                raise
+            print(missing, file=sys.stderr)
+            return 1
+        return mod.main()
+    main.__name__ = main.__qualname__ = prog
+    return main
+
+
+# console-script targets (setup.py entry_points): the ROS processes go through ros_entry
+sim_node = ros_entry("flagbot_sim.ros.sim_node", "sim_node")
+beam_node = ros_entry("flagbot_sim.ros.beam_node", "beam_node")
+cmd_profile = ros_entry("flagbot_sim.ros.cmd_profile", "cmd_profile")
+record = ros_entry("flagbot_sim.ros.recorder", "record")
+replay = ros_entry("flagbot_sim.ros.replay", "replay")

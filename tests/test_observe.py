@@ -1,0 +1,67 @@
+"""Observation: bounded history, one Snapshot per state, one steady-state rule that means "near the final value"."""
+import math
+
+import numpy as np
+import pytest
+
+from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.observe import KEEP_WINDOWS, SAMPLES_PER_WINDOW, SteadyDetector
+from flagbot_sim.scene import load_scene
+
+
+def test_history_stays_bounded_however_long_the_run():
+    """Memory does not grow with simulated time: the history holds the last few windows only."""
+    sim = Simulation(load_scene("design2", ["flagellum.length=0.04", "observe.steady_window=0.5"]))
+    sizes = []
+    for t_mark in (5.0, 10.0, 20.0):
+        while sim.time < t_mark - 1e-9:
+            sim.step()
+        sizes.append(len(sim.observer._hist))
+    cap = KEEP_WINDOWS * min(SAMPLES_PER_WINDOW, round(0.5 / sim.dt)) + 3
+    assert max(sizes) <= cap and max(sizes) - min(sizes) <= 1
+    # and the windowed rates still come out of it: mean rate over the window = accumulated angle / window
+    r = sim.observer.window_rates(0.5)
+    assert r["omega_h"] + r["omega_t"] == pytest.approx(sim.omega_T, rel=1e-3)
+
+
+def test_snapshot_is_the_state_in_the_fixed_frame():
+    sim = Simulation(load_scene("design1", ["flagellum.length=0.05"]))
+    sim.run(1.0)
+    s = sim.snapshot()
+    assert s.is_finite() and s.t == sim.time
+    assert np.linalg.norm(s.orientation) == pytest.approx(1.0, abs=1e-12)
+    # the head moves forward (+x in the fixed frame) from the origin, spinning about its forward axis at omega_h
+    assert s.position[0] > 0 and s.velocity[0] == pytest.approx(s.v, rel=1e-6)
+    assert s.angular_velocity[0] == pytest.approx(s.omega_h, rel=1e-2)
+    assert s.omega_h > 0 and s.omega_t > 0 and s.drive_angle == pytest.approx(sim.omega_T * sim.time, rel=1e-12)
+    # at steady spin the motor torque balances the head's Stokes torque
+    assert s.motor_torque == pytest.approx(sim.scene.head_torque_coefficient * s.omega_h, rel=2e-2)
+
+
+def test_steady_means_within_rtol_of_the_final_value_for_a_slow_approach():
+    """x(t) = 1 + e^{-t / tau} with tau = 20 windows: consecutive windows differ by < rtol long before x is
+    within rtol of 1; the rule waits for the latter."""
+    w, rtol, tau = 1.0, 1e-3, 20.0
+    det = SteadyDetector(w, rtol)
+    plain_steady_at = None
+    t = 0.0
+    while not det.steady:
+        t += 0.5 * w
+        x = 1.0 + math.exp(-t / tau)
+        det.update(t, np.array([x]), np.array([1.0]))
+        if plain_steady_at is None and det.change < rtol:
+            plain_steady_at = t
+    assert plain_steady_at is not None and plain_steady_at < t
+    assert math.exp(-t / tau) < 2 * rtol        # within (about) rtol of the final value when declared
+    assert math.exp(-plain_steady_at / tau) > 10 * rtol   # what a window-to-window test alone would report
+
+
+def test_clamped_flagellum_at_half_an_rpm_is_steady_only_near_its_final_forces():
+    """Issue #12: the old rule read steady at 9 s while Fx was 4.6% off its final value."""
+    sim = Simulation(load_scene("clamped_flagellum", ["motor.omega_rpm=0.5"]))
+    assert sim.run_until_steady(120.0)
+    at_steady = sim.summary()
+    sim.run(60.0)
+    final = sim.summary()
+    for k in ("Fx", "Tx"):
+        assert at_steady[k] == pytest.approx(final[k], rel=3 * sim.scene.observe.steady_rtol), k
