@@ -59,8 +59,8 @@ def test_full_disk_during_recording(ros, tmp_path):
         code, out = proc.stop()
     assert "Traceback" not in out, out
     assert code == 1, out              # the run lost data: not a success
-    # one clear error line for the failure, not one per topic or per write
-    failures = [line for line in out.splitlines() if f"recording to {full} failed" in line]
-    assert len(failures) == 1, out
-    assert "EFBIG" in failures[0] or "too large" in failures[0].lower(), failures[0]
+    # one clear error line for the failure (the recorder's), not one per topic or per write
+    errors = [line for line in out.splitlines() if line.startswith("[ERROR]")]
+    assert len(errors) == 1 and "recording stopped" in errors[0] and str(full) in errors[0], out
+    assert "too large" in errors[0].lower(), errors[0]
     assert "recording failed to write" in out

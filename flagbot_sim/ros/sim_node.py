@@ -96,12 +96,8 @@ def build_simulation(scene: str, n_flagella: int, scene_overrides) -> Simulation
 
 
 def recording_error(recorder) -> str:
-    """The recorder's write error, '' while healthy. ``Recorder.error`` is the contract; a recorder without it
-    (before that attribute landed) is asked through its writer."""
-    err = getattr(recorder, "error", None)
-    if err is None:
-        err = getattr(getattr(recorder, "writer", None), "error", None)
-    return err or ""
+    """The recording's write error: '' while healthy (and without a recording); set once, kept until closed."""
+    return (recorder.error or "") if recorder is not None else ""
 
 
 class SimNode(Node):
@@ -158,7 +154,6 @@ class SimNode(Node):
         self._marker_ids: set | None = None     # (ns, id) of the markers last published
         self.recorder = None
         self.recording_failed = False            # a recording failed to write during this run: exit code 1
-        self._error_logged_for = None            # the recorder whose write error has been logged (once)
         if p["record"]:
             self.recorder = self._open_recorder(p, self.sim)
             self.get_logger().info(f"recording to {self.recorder.path}")
@@ -239,14 +234,10 @@ class SimNode(Node):
                 f"{s.duration:.1f} s, {s.size_bytes / 1024:.0f} KiB" + (f", ERROR {s.error}" if s.error else ""))
 
     def _check_recording(self) -> str:
-        """The current recording's write error ('' if none); logged once per recording when it first appears."""
-        err = recording_error(self.recorder) if self.recorder is not None else ""
-        if err and self._error_logged_for is not self.recorder:
-            self._error_logged_for = self.recorder
+        """The current recording's write error ('' if none). The recorder logs it itself, once."""
+        err = recording_error(self.recorder)
+        if err:
             self.recording_failed = True
-            self.get_logger().error(
-                f"recording to {self.recorder.path} failed: {err}. Nothing more is written to it; it is readable up "
-                f"to its last flush (flagbot bag-recover). Set record to '' to stop or to a new file to restart")
         return err
 
     def close(self) -> int:
@@ -487,7 +478,8 @@ class SimNode(Node):
         if self.last_error or rec_err:
             parts = [self.last_error] if self.last_error else []
             if rec_err:
-                parts.append(f"recording to {self.recorder.path} failed: {rec_err}")
+                parts.append(f"recording to {self.recorder.path} failed: {rec_err}; nothing more is written (set "
+                             f"record to '' or to a new file)")
             level, message = "ERROR", "; ".join(parts)
         values = {
             "sim_time_s": f"{self.sim_time:.4f}", "omega_T_rad_s": f"{sim.omega_T:.6g}",
@@ -498,7 +490,7 @@ class SimNode(Node):
             "withheld_non_finite": self.withheld, "steps": sim.steps, "scene": sim.scene.scene.name,
             "n_flagella": sim.scene.robot.n_flagella,
             "recording": self.recorder.path if self.recorder is not None else "",
-            "recording_error": recording_error(self.recorder) if self.recorder is not None else "",
+            "recording_error": recording_error(self.recorder),
         }
         self.pub_diag.publish(convert.diagnostics_msg(self.sim_time, "flagbot_sim: simulator", level, message,
                                                       values))
