@@ -53,7 +53,7 @@ setup(
     name=package_name,
     version=re.search(r'__version__ = "(.+)"', Path("flagbot_sim/__init__.py").read_text()).group(1),
     packages=find_packages(include=["flagbot_sim", "flagbot_sim.*"]),
-    package_data={"flagbot_sim": ["scenes/*.toml"]},
+    package_data={"flagbot_sim": ["scenes/*.toml", "ros/*.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),

@@ -12,14 +12,17 @@ OMEGA_T = "omega_t"                  # std_msgs/Float64 (rad/s)
 SPEED = "speed"                      # std_msgs/Float64 (m/s, positive = head first)
 MARKERS = "markers"                  # visualization_msgs/MarkerArray
 DIAGNOSTICS = "/diagnostics"         # diagnostic_msgs/DiagnosticArray
+ROBOT_DESCRIPTION = "robot_description"   # std_msgs/String, URDF of head and plate (transient local)
 BEAM_SPEED = "beam/speed"            # std_msgs/Float64 (m/s)
 BEAM_OMEGA_H = "beam/omega_h"        # std_msgs/Float64 (rad/s)
 BEAM_OMEGA_T = "beam/omega_t"        # std_msgs/Float64 (rad/s)
 
-RESET = "reset"                      # std_srvs/Trigger
-PAUSE = "pause"                      # std_srvs/SetBool
+# services in the simulator node's own namespace (/sim_node/reset): two simulators do not collide
+RESET = "~/reset"                    # std_srvs/Trigger
+PAUSE = "~/pause"                    # std_srvs/SetBool
 
-SIM_PUBLISHED = [CLOCK, HEAD_POSE, ODOM, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED, MARKERS, DIAGNOSTICS]
+SIM_PUBLISHED = [CLOCK, HEAD_POSE, ODOM, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED, MARKERS, DIAGNOSTICS,
+                 ROBOT_DESCRIPTION]
 BEAM_PUBLISHED = [BEAM_SPEED, BEAM_OMEGA_H, BEAM_OMEGA_T]
 #: what the recorder records by default: every flagbot topic, the command stream and the clock
 DEFAULT_RECORD_TOPICS = [CMD_OMEGA] + SIM_PUBLISHED + BEAM_PUBLISHED

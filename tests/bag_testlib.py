@@ -191,7 +191,8 @@ class LimitedProcess(ChildProcess):
         import sys
         import threading
         env = dict(os.environ)
-        assert env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST", "conftest.py keeps DDS on this machine"
+        from flagbot_sim.ros.dds import loopback_only
+        assert loopback_only(env), "conftest.py keeps DDS on this machine"
         assert env.get("ROS_DOMAIN_ID")
         env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
         self._chunks: list[bytes] = []

@@ -1,8 +1,20 @@
-"""Test-wide environment: DDS stays on this machine, each test process gets its own ROS domain and log dir."""
+"""Test-wide environment: DDS stays on this machine, each test process gets its own ROS domain and log dir.
+
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, then the package's own loopback-only DDS profile on top of it
+(flagbot_sim/ros/dds.py), exactly as every flagbot process applies it: this process's probe nodes and every node
+the tests start (they inherit this environment) bind DDS to 127.0.0.1 only.
+"""
 import os
 import tempfile
 
+from flagbot_sim.ros.dds import configure_dds, loopback_only
+
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.pop("FLAGBOT_DDS_NETWORK", None)     # no test widens discovery: an opt-in from the shell is dropped
+for _var in ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE"):
+    os.environ.pop(_var, None)                  # nor does a profile of the user's: the tests run on ours
+configure_dds(os.environ)
+assert loopback_only(os.environ)
 # one domain per test process (0-232 are valid); pytest-xdist workers are separate processes
 os.environ.setdefault("ROS_DOMAIN_ID", str(20 + os.getpid() % 200))
 if "ROS_LOG_DIR" not in os.environ:        # dev.py sets it; setdefault would still create an empty dir

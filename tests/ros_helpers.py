@@ -1,22 +1,36 @@
 """Helpers for tests that talk to flagbot nodes running in other processes over real DDS (localhost only).
 
-conftest.py has already set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, a ROS_DOMAIN_ID of this test process and
-ROS_LOG_DIR; child processes inherit them unchanged (the rclpy wheels need the parent's environment).
+conftest.py has already set the loopback-only DDS environment (flagbot_sim/ros/dds.py on top of
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), a ROS_DOMAIN_ID of this test process and ROS_LOG_DIR; child processes
+inherit them unchanged (the rclpy wheels need the parent's environment).
 """
 from __future__ import annotations
 
+import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import MarkerArray
+
+from flagbot_sim.ros.dds import loopback_only
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DISCOVERY_TIMEOUT = 20.0
@@ -27,19 +41,34 @@ class ChildProcess:
 
     stop() signals it and returns (exit code, output); wait() fails the test if it does not end in time."""
 
-    def __init__(self, *argv: str):
+    def __init__(self, *argv: str, pipe: bool = False):
+        """``pipe``: the output goes through a pipe instead of a file (for a child whose file writes are
+        limited, e.g. by RLIMIT_FSIZE: a pipe is not a file)."""
         env = dict(os.environ)
-        assert env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST", "conftest.py keeps DDS on this machine"
+        assert loopback_only(env), "conftest.py keeps DDS on this machine"
         assert env.get("ROS_DOMAIN_ID")
         env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
-        self.log = tempfile.TemporaryFile(mode="w+")
-        self.proc = subprocess.Popen([sys.executable, *argv], env=env, stdout=self.log, stderr=subprocess.STDOUT,
-                                     cwd=ROOT)
+        self.log = None if pipe else tempfile.TemporaryFile(mode="w+")
+        self.proc = subprocess.Popen([sys.executable, *argv], env=env, stdout=subprocess.PIPE if pipe else self.log,
+                                     stderr=subprocess.STDOUT, cwd=ROOT, text=pipe)
+        self._lines: list[str] = []
+        self._reader = None
+        if pipe:
+            self._reader = threading.Thread(target=lambda: self._lines.extend(self.proc.stdout), daemon=True)
+            self._reader.start()
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
 
     def alive(self) -> bool:
         return self.proc.poll() is None
 
     def output(self) -> str:
+        if self.log is None:
+            if self.proc.poll() is not None:
+                self._reader.join(5.0)
+            return "".join(self._lines)
         self.log.seek(0)
         return self.log.read()
 
@@ -67,6 +96,84 @@ class NodeProcess(ChildProcess):
 
     def __init__(self, module: str, *args: str):
         super().__init__("-m", module, *args)
+
+
+def t_of(stamp):
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+class Listener:
+    """Collects everything sim_node publishes, and asserts nothing non-finite ever arrives.
+
+    Lives on the module's shared probe node: close() it at the end of the test, or later tests keep receiving
+    (and decoding) messages into it."""
+
+    def __init__(self, node: Node):
+        self.node = node
+        self.msgs = {k: [] for k in ("clock", "pose", "odom", "joints", "omega_h", "omega_t", "speed", "markers",
+                                     "diag")}
+        self.non_finite = []
+        sub = node.create_subscription
+        self.subs = [
+            sub(Clock, "/clock", self._cb("clock"), 50),
+            sub(PoseStamped, "head_pose", self._cb("pose"), 50),
+            sub(Odometry, "odom", self._cb("odom"), 50),
+            sub(JointState, "joint_states", self._cb("joints"), 50),
+            sub(Float64, "omega_h", self._cb("omega_h"), 50),
+            sub(Float64, "omega_t", self._cb("omega_t"), 50),
+            sub(Float64, "speed", self._cb("speed"), 50),
+            sub(MarkerArray, "markers", self._cb("markers"), 10),
+            sub(DiagnosticArray, "/diagnostics", self._cb("diag"), 10),
+        ]
+        self.cmd = node.create_publisher(Float64, "cmd_omega", 10)
+        # the node's own services (~/pause): /sim_node/pause
+        self.pause = node.create_client(SetBool, "/sim_node/pause")
+        self.reset = node.create_client(Trigger, "/sim_node/reset")
+
+    def close(self) -> None:
+        """Destroy the subscriptions, the publisher and the clients on the shared node (idempotent)."""
+        for s in self.subs:
+            self.node.destroy_subscription(s)
+        self.subs = []
+        if self.cmd is not None:
+            self.node.destroy_publisher(self.cmd)
+            self.node.destroy_client(self.pause)
+            self.node.destroy_client(self.reset)
+            self.cmd = self.pause = self.reset = None
+
+    def _cb(self, key):
+        def cb(m):
+            self.msgs[key].append(m)
+            for x in _floats(m):
+                if not math.isfinite(x):
+                    self.non_finite.append((key, x))
+        return cb
+
+    @property
+    def clock(self) -> float:
+        return t_of(self.msgs["clock"][-1].clock) if self.msgs["clock"] else 0.0
+
+    @staticmethod
+    def diag_values_of(msg) -> dict:
+        s = msg.status[0]
+        return {kv.key: kv.value for kv in s.values} | {"_level": s.level, "_message": s.message}
+
+    def diag_values(self) -> dict:
+        return self.diag_values_of(self.msgs["diag"][-1])
+
+    def run_until(self, t: float, timeout: float = 120.0) -> None:
+        spin_until(self.node, lambda: self.clock >= t, timeout, f"simulation time {t} s")
+
+
+def _floats(m):
+    if isinstance(m, float):
+        yield m
+    elif isinstance(m, (list, tuple)) or type(m).__name__ == "array":
+        for x in m:
+            yield from _floats(x)
+    elif hasattr(m, "get_fields_and_field_types"):
+        for f in m.get_fields_and_field_types():
+            yield from _floats(getattr(m, f))
 
 
 def spin_until(node: Node, predicate, timeout: float, what: str = "condition") -> None:
@@ -115,3 +222,37 @@ def describe_all_params(node: Node, target: str) -> dict:
         node.destroy_client(lst)
         node.destroy_client(desc)
     return {d.name: d for d in ds}
+
+
+def _address(hex_addr: str, v6: bool) -> tuple[str, int]:
+    ip, port = hex_addr.split(":")
+    raw = bytes.fromhex(ip)
+    if v6:      # four host-order 32-bit words
+        return socket.inet_ntop(socket.AF_INET6, b"".join(raw[i:i + 4][::-1] for i in range(0, 16, 4))), int(port, 16)
+    return socket.inet_ntop(socket.AF_INET, raw[::-1]), int(port, 16)
+
+
+def inet_sockets(pid: int | str = "self") -> list[tuple[str, str, int]]:
+    """(protocol, local address, port) of every UDP/TCP socket process ``pid`` holds: its /proc/PID/fd socket
+    inodes matched in /proc/PID/net/{udp,udp6,tcp,tcp6}."""
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:         # closed meanwhile
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    out = []
+    for proto in ("udp", "udp6", "tcp", "tcp6"):
+        with open(f"/proc/{pid}/net/{proto}") as f:
+            for line in f.read().splitlines()[1:]:
+                fields = line.split()
+                if fields[9] in inodes:
+                    out.append((proto, *_address(fields[1], proto.endswith("6"))))
+    return out
+
+
+def is_loopback(address: str) -> bool:
+    """127.0.0.0/8, ::1 or an IPv4-mapped 127.x; the wildcard 0.0.0.0 / :: is NOT loopback (every interface)."""
+    return address.startswith("127.") or address == "::1" or address.startswith("::ffff:127.")

@@ -56,7 +56,7 @@ def run_recording_node(ros, tmp_path, record_at_launch=True):
     cmd = ros.create_publisher(Float64, "cmd_omega", 10)
     # two subscriptions: sim_node's command input and its recorder (which subscribes once it sees a publisher)
     spin_until(ros, lambda: cmd.get_subscription_count() >= 2, DISCOVERY_TIMEOUT, "cmd_omega input and recorder")
-    call(ros, ros.create_client(SetBool, "pause"), SetBool.Request(data=False))
+    call(ros, ros.create_client(SetBool, "/sim_node/pause"), SetBool.Request(data=False))   # ~/pause
     spin_until(ros, lambda: clock and clock[-1] > 1.0, 60, "1 s of simulation")
     cmd.publish(Float64(data=9.0))                        # a command change during the recording
     spin_until(ros, lambda: clock[-1] > 2.5, 60, "2.5 s of simulation")

@@ -1,102 +1,26 @@
 """sim_node as a device: another process commands it over DDS and receives its outputs (real rclpy)."""
 import math
 import signal
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import Odometry
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.srv import SetParametersAtomically
-from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64, String
 from std_srvs.srv import SetBool, Trigger
-from visualization_msgs.msg import MarkerArray
+from visualization_msgs.msg import Marker
 
 from flagbot_sim.bag import BagReader
 from flagbot_sim.physics import Simulation
 from flagbot_sim.scene import load_scene
 
-from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, call, get_params, set_params, spin_until
+from ros_helpers import DISCOVERY_TIMEOUT, Listener, NodeProcess, call, get_params, set_params, spin_until, t_of
 
 SCENE = ["design2", ["flagellum.length=0.05"]]     # short flagella: steady within a couple of seconds
 OMEGA = 10.0
-
-
-def t_of(stamp):
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
-class Listener:
-    """Collects everything sim_node publishes, and asserts nothing non-finite ever arrives.
-
-    Lives on the module's shared probe node: close() it at the end of the test, or later tests keep receiving
-    (and decoding) messages into it."""
-
-    def __init__(self, node: Node):
-        self.node = node
-        self.msgs = {k: [] for k in ("clock", "pose", "odom", "joints", "omega_h", "omega_t", "speed", "markers",
-                                     "diag")}
-        self.non_finite = []
-        sub = node.create_subscription
-        self.subs = [
-            sub(Clock, "/clock", self._cb("clock"), 50),
-            sub(PoseStamped, "head_pose", self._cb("pose"), 50),
-            sub(Odometry, "odom", self._cb("odom"), 50),
-            sub(JointState, "joint_states", self._cb("joints"), 50),
-            sub(Float64, "omega_h", self._cb("omega_h"), 50),
-            sub(Float64, "omega_t", self._cb("omega_t"), 50),
-            sub(Float64, "speed", self._cb("speed"), 50),
-            sub(MarkerArray, "markers", self._cb("markers"), 10),
-            sub(DiagnosticArray, "/diagnostics", self._cb("diag"), 10),
-        ]
-        self.cmd = node.create_publisher(Float64, "cmd_omega", 10)
-        self.pause = node.create_client(SetBool, "pause")
-        self.reset = node.create_client(Trigger, "reset")
-
-    def close(self) -> None:
-        """Destroy the subscriptions, the publisher and the clients on the shared node (idempotent)."""
-        for s in self.subs:
-            self.node.destroy_subscription(s)
-        self.subs = []
-        if self.cmd is not None:
-            self.node.destroy_publisher(self.cmd)
-            self.node.destroy_client(self.pause)
-            self.node.destroy_client(self.reset)
-            self.cmd = self.pause = self.reset = None
-
-    def _cb(self, key):
-        def cb(m):
-            self.msgs[key].append(m)
-            for x in _floats(m):
-                if not math.isfinite(x):
-                    self.non_finite.append((key, x))
-        return cb
-
-    @property
-    def clock(self) -> float:
-        return t_of(self.msgs["clock"][-1].clock) if self.msgs["clock"] else 0.0
-
-    def diag_values(self) -> dict:
-        s = self.msgs["diag"][-1].status[0]
-        return {kv.key: kv.value for kv in s.values} | {"_level": s.level, "_message": s.message}
-
-    def run_until(self, t: float, timeout: float = 120.0) -> None:
-        spin_until(self.node, lambda: self.clock >= t, timeout, f"simulation time {t} s")
-
-
-def _floats(m):
-    if isinstance(m, float):
-        yield m
-    elif isinstance(m, (list, tuple)) or type(m).__name__ == "array":
-        for x in m:
-            yield from _floats(x)
-    elif hasattr(m, "get_fields_and_field_types"):
-        for f in m.get_fields_and_field_types():
-            yield from _floats(getattr(m, f))
 
 
 @pytest.fixture
@@ -217,6 +141,58 @@ def test_invalid_parameters_are_refused_with_a_reason(ros, sim_node):
     n0 = len(lis.msgs["markers"])
     spin_until(ros, lambda: len(lis.msgs["markers"]) > n0 + 2, 20, "markers after the rebuild")
     assert [m.ns for m in lis.msgs["markers"][-1].markers].count("flagella") == 3
+
+
+def flagella_drawn(arrays) -> set:
+    """The flagellum marker ids on screen after a viewer applied ``arrays`` in order (ADD, DELETE, DELETEALL)."""
+    shown = set()
+    for arr in arrays:
+        for m in arr.markers:
+            if m.action == Marker.DELETEALL and m.ns in ("", "flagella"):
+                shown.clear()
+            elif m.action == Marker.DELETE and m.ns == "flagella":
+                shown.discard(m.id)
+            elif m.action == Marker.ADD and m.ns == "flagella":
+                shown.add(m.id)
+    return shown
+
+
+def test_removed_flagella_are_deleted_from_the_markers(ros, sim_node):
+    proc, lis = sim_node
+    start(ros, lis)
+    spin_until(ros, lambda: lis.msgs["markers"], DISCOVERY_TIMEOUT, "markers")
+    for n, ids in ((3, {0, 1, 2}), (2, {0, 1})):
+        (res,) = set_params(ros, "sim_node", n_flagella=n)
+        assert res.successful, res.reason
+        spin_until(ros, lambda: flagella_drawn(lis.msgs["markers"]) == ids, 20, f"{n} flagella on screen")
+    # the shrink was announced: a DELETEALL (or a DELETE of flagellum 2) arrived after the three were drawn
+    actions = [(m.action, m.ns, m.id) for arr in lis.msgs["markers"] for m in arr.markers]
+    third = max(i for i, a in enumerate(actions) if a == (Marker.ADD, "flagella", 2))
+    assert any(a[0] == Marker.DELETEALL or a == (Marker.DELETE, "flagella", 2) for a in actions[third:])
+    # while the set stays the same, nothing is deleted (no flicker)
+    n_now = len(lis.msgs["markers"])
+    spin_until(ros, lambda: len(lis.msgs["markers"]) > n_now + 5, 10, "more markers")
+    assert all(m.action == Marker.ADD for arr in lis.msgs["markers"][n_now + 1:] for m in arr.markers)
+
+
+def test_robot_description_reaches_a_late_subscriber_with_the_joint_states_names(ros, sim_node):
+    proc, lis = sim_node
+    start(ros, lis)
+    spin_until(ros, lambda: lis.msgs["joints"] and lis.msgs["odom"], DISCOVERY_TIMEOUT, "joint_states and odom")
+    got = []
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    sub = ros.create_subscription(String, "robot_description", got.append, latched)   # long after it was sent
+    try:
+        spin_until(ros, lambda: got, DISCOVERY_TIMEOUT, "the latched robot_description")
+    finally:
+        ros.destroy_subscription(sub)
+    root = ET.fromstring(got[-1].data)
+    assert root.tag == "robot"
+    joints = {j.get("name") for j in root.iter("joint")}
+    assert joints == set(lis.msgs["joints"][-1].name)
+    children = {j.find("child").get("link") for j in root.iter("joint")}
+    roots = {link.get("name") for link in root.iter("link")} - children
+    assert roots == {lis.msgs["odom"][-1].child_frame_id}      # the URDF hangs from odometry's child frame
 
 
 def test_reset_returns_the_robot_to_the_start_and_pause_stops_time(ros, sim_node):

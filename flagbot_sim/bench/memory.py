@@ -26,8 +26,10 @@ def rss_mb(pid: int) -> float:
 
 
 def _env() -> dict:
+    from ..ros.dds import configure_dds
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    configure_dds(env)          # the loopback-only DDS profile, as every flagbot process (ros/dds.py)
     env.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     env.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="flagbot_bench_roslog_"))
     return env
@@ -53,7 +55,8 @@ def measure_node(scene: str = "design1", marks=MARKS) -> list[tuple[float, float
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
     env = _env()
-    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR")})
+    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR",
+                                           "FASTRTPS_DEFAULT_PROFILES_FILE") if k in env})
     proc = subprocess.Popen([sys.executable, "-m", "flagbot_sim.ros.sim_node", "--ros-args", "-p", f"scene:={scene}",
                              "-p", "real_time_factor:=0.0", "-p", "initial_omega:=10.47"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)

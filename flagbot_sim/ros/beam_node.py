@@ -23,7 +23,7 @@ from ..scene import SceneError
 from . import convert
 from .. import topics as names
 from .params import ParamSpec, command_refusal, declare, help_text, node_scene, refusal, scene_request
-from .runtime import run_node, wants_help
+from .runtime import one_line, run_node, wants_help
 
 PARAMS = [
     ParamSpec("scene", "design1", "built-in scene name or path to a .toml scene file"),
@@ -87,8 +87,10 @@ class BeamNode(Node):
         try:
             scene = scene_request(self, new)
             bp = None if scene is None else BeamParams.from_scene(scene)
-        except (SceneError, ValueError) as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
+        except SceneError as exc:
+            return SetParametersResult(successful=False, reason=one_line(str(exc)))
+        except Exception as exc:  # noqa: BLE001 - no value may kill the node: refuse what was not foreseen
+            return SetParametersResult(successful=False, reason=one_line(f"{type(exc).__name__}: {exc}"))
         with self._lock:
             if bp is not None:
                 self.params = bp

@@ -22,7 +22,7 @@ from std_msgs.msg import Float64
 from ..motor_profile import ProfileError, parse
 from ..scene import RPM
 from .. import topics as names
-from .runtime import run_node, user_args
+from .runtime import RosArgsError, run_node, user_args
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,7 +72,12 @@ class ProfileNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
-    args = build_parser().parse_args(user_args(argv))
+    try:
+        own = user_args(argv)
+    except RosArgsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    args = build_parser().parse_args(own)
     if not (0.1 <= args.rate <= 1000.0):
         print(f"error: --rate must be within [0.1, 1000] Hz, got {args.rate:g}", file=sys.stderr)
         return 2

@@ -17,12 +17,14 @@ from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import ColorRGBA, Float64
+from std_msgs.msg import ColorRGBA, Float64, String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..physics.observe import quaternion_from_matrix
+from ..urdf import JOINT_NAMES as _URDF_JOINTS
 
-JOINT_NAMES = ["head_spin", "flagella_spin", "motor"]
+#: joint_states names: the joints of the URDF on robot_description (flagbot_sim.urdf), in this order
+JOINT_NAMES = list(_URDF_JOINTS)
 
 
 def stamp(t: float) -> Time:
@@ -95,10 +97,16 @@ def _color(r, g, b, a=1.0) -> ColorRGBA:
 
 
 def markers_msg(t: float, frame: str, flagella_w: list, head_centre_w, head_radius: float, plate_w: list,
-                rod_radius: float) -> MarkerArray:
-    """One LINE_STRIP per flagellum, a SPHERE for the head, a LINE_LIST for the plate arms and sockets."""
+                rod_radius: float, delete_all_first: bool = False) -> MarkerArray:
+    """One LINE_STRIP per flagellum, a SPHERE for the head, a LINE_LIST for the plate arms and sockets.
+
+    ``delete_all_first``: begin with a DELETEALL marker (empty namespace: every marker of this array's
+    publisher), for when the set of markers changed (fewer flagella, no head) and old ones would stay on screen.
+    """
     arr = MarkerArray()
     st = stamp(t)
+    if delete_all_first:
+        arr.markers.append(delete_all_marker(t, frame))
     for i, line in enumerate(flagella_w):
         m = Marker(ns="flagella", id=i, type=Marker.LINE_STRIP, action=Marker.ADD)
         m.header.stamp = st
@@ -128,6 +136,24 @@ def markers_msg(t: float, frame: str, flagella_w: list, head_centre_w, head_radi
             m.points += [_point(a), _point(b)]
     arr.markers.append(m)
     return arr
+
+
+def delete_all_marker(t: float, frame: str) -> Marker:
+    """DELETEALL with an empty namespace: removes every marker this publisher drew (RViz, Foxglove)."""
+    m = Marker(ns="", id=0, action=Marker.DELETEALL)
+    m.header.stamp = stamp(t)
+    m.header.frame_id = frame
+    m.pose.orientation.w = 1.0
+    return m
+
+
+def marker_ids(arr: MarkerArray) -> set[tuple[str, int]]:
+    """The (namespace, id) of every marker an array adds."""
+    return {(m.ns, m.id) for m in arr.markers if m.action == Marker.ADD}
+
+
+def string_msg(text: str) -> String:
+    return String(data=text)
 
 
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}

@@ -2,8 +2,9 @@
 
 Starts sim_node (as fast as possible, /clock published), beam_node and cmd_profile (a step profile of omega_T
 timed on /clock), watches them with a monitor node in this process, then prints per omega_T step the simulated
-steady omega_h, omega_t and speed next to the beam-theory prediction. DDS stays on localhost
-(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of its own.
+steady omega_h, omega_t and speed next to the beam-theory prediction. DDS stays on this machine (the loopback
+profile of :mod:`flagbot_sim.ros.dds`, for the monitor and the nodes alike), in the ROS domain given by
+``--domain``, else an exported ROS_DOMAIN_ID, else one of its own.
 """
 from __future__ import annotations
 
@@ -28,16 +29,37 @@ def register(sub) -> None:
     p.add_argument("--step-duration", type=float, default=20.0, help="simulated seconds per step (default 20)")
     p.add_argument("--regime", default="nlb", choices=REGIMES, help="beam regime")
     p.add_argument("--real-time-factor", type=float, default=0.0, help="0 = as fast as possible (default)")
-    p.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: one derived from the pid)")
+    p.add_argument("--domain", type=int, default=None,
+                   help="ROS domain id, 0-232 (default: an exported ROS_DOMAIN_ID, else one derived from the pid)")
     p.add_argument("--record", default=None, help="also record the run to this MCAP file")
     p.add_argument("--json", action="store_true", help="print the table as JSON")
     p.set_defaults(func=cmd_demo)
 
 
+def demo_domain(arg: int | None, env, pid: int) -> int:
+    """The ROS domain of the demo: ``--domain``, else an exported ROS_DOMAIN_ID, else 100 + pid % 100.
+
+    Raises ValueError naming the source when the id is not an integer in 0-232 (ROS 2's valid range)."""
+    if arg is not None:
+        value, source = arg, "--domain"
+    elif str(env.get("ROS_DOMAIN_ID", "")).strip():
+        source = "ROS_DOMAIN_ID"
+        try:
+            value = int(str(env["ROS_DOMAIN_ID"]).strip())
+        except ValueError:
+            raise ValueError(f"ROS_DOMAIN_ID = {env['ROS_DOMAIN_ID']!r} is not an integer") from None
+    else:
+        return 100 + pid % 100
+    if not 0 <= value <= 232:
+        raise ValueError(f"{source} = {value} is out of range: a ROS domain id is 0-232")
+    return value
+
+
 def _use_demo_environment(domain: int) -> None:
-    """DDS on localhost in the demo's own domain, for the monitor in this process and the nodes it starts
+    """DDS on this machine only, in the demo's domain, for the monitor in this process and the nodes it starts
     (they inherit the environment). A log directory is made only when ROS_LOG_DIR is not set."""
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    from .dds import configure_dds
+    configure_dds(os.environ)
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     if "ROS_LOG_DIR" not in os.environ:
         os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="flagbot_demo_log_")
@@ -87,7 +109,11 @@ def cmd_demo(args) -> int:
     rpms = [float(x) for x in args.rpm.split(",") if x.strip()]
     spec = ",".join(f"{r:g}:{args.step_duration:g}" for r in rpms)
     profile = parse("steps", [spec], rpm=True)
-    domain = args.domain if args.domain is not None else 100 + os.getpid() % 100
+    try:
+        domain = demo_domain(args.domain, os.environ, os.getpid())
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     _use_demo_environment(domain)
     py = [sys.executable, "-m"]
     common = ["-p", f"scene:={args.scene}", "-p", f"n_flagella:={n}"]
@@ -179,7 +205,7 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
     node.create_subscription(Float64, names.BEAM_OMEGA_H, on_beam("h"), latched)
     node.create_subscription(Float64, names.BEAM_OMEGA_T, on_beam("t"), latched)
     from std_srvs.srv import SetBool
-    pause = node.create_client(SetBool, names.PAUSE)
+    pause = node.create_client(SetBool, "sim_node/" + names.PAUSE.removeprefix("~/"))   # sim_node's own service
     bar = ProgressBar(duration, label="demo (simulated time)", enabled=not quiet)
     wall0 = time.monotonic()
     try:

@@ -1,15 +1,32 @@
-"""Node parameters declared from one spec list, so the descriptors, `--help` and msg_docs/ say the same thing."""
+"""Node parameters declared from one spec list, so the descriptors, `--help` and msg_docs/ say the same thing.
+
+Also the checks a node applies to a value before anything changes: bounded strings, frame names, and a scene
+loader (:func:`node_scene`) that refuses anything other than a readable regular UTF-8 file of sane size without
+ever blocking on it, and turns every failure into a :class:`SceneError` with a one-line reason.
+"""
 from __future__ import annotations
 
 import math
+import os
+import stat
+import threading
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, TypeVar
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.parameter import Parameter
 
-from ..scene import Scene, load_scene, node_overrides
+from ..scene import Scene, SceneError, node_overrides, resolve_scene_path, scene_from_dict
+from .runtime import one_line
+
+MAX_STRING = 4096            # longest accepted string parameter (a path, a scene name, one override)
+MAX_OVERRIDES = 64           # most entries in scene_overrides
+MAX_FRAME = 256              # longest frame id
+MAX_SCENE_BYTES = 1 << 20    # largest scene file read (the built-in ones are ~2 KiB)
+T = TypeVar("T")
 
 #: the parameters that together choose a node's scene
 SCENE_PARAMS = ("scene", "n_flagella", "scene_overrides")
@@ -114,15 +131,142 @@ def msg_docs_dir() -> Path:
     return src if src.is_dir() else pkg.parents[3] / "share" / "flagbot_sim" / "msg_docs"
 
 
-def node_scene(scene: str, n_flagella: int, scene_overrides) -> Scene:
-    """The scene a node runs: a scene name or file, its overrides, and n_flagella (0 keeps the scene's)."""
-    return load_scene(scene, node_overrides(n_flagella, scene_overrides))
+def text_refusal(name: str, value, limit: int = MAX_STRING) -> str | None:
+    """Why a string parameter value is refused: longer than ``limit``; None if accepted."""
+    if isinstance(value, str) and len(value) > limit:
+        return f"{name} is {len(value)} characters long; at most {limit} are accepted"
+    return None
+
+
+def frame_refusal(name: str, value: str) -> str | None:
+    """Why a frame id is refused: empty, longer than MAX_FRAME, or holding whitespace or control characters."""
+    if not value.strip():
+        return f"{name} must not be empty"
+    if len(value) > MAX_FRAME:
+        return f"{name} is {len(value)} characters long; at most {MAX_FRAME} are accepted"
+    if any(c.isspace() or not c.isprintable() for c in value):
+        return f"{name} = {one_line(repr(value), 80)}: a frame id holds no spaces or control characters"
+    return None
+
+
+def read_scene_file(path: Path) -> str:
+    """The text of a scene file. Never blocks: the file is opened non-blocking and must be a regular file
+    (a FIFO, a directory or a device is refused before anything is read), at most MAX_SCENE_BYTES, UTF-8."""
+    shown = one_line(repr(str(path)), 120)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    except OSError as exc:
+        raise SceneError(f"scene file {shown} cannot be opened: {exc.strerror or exc}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                    else "a device or socket")
+            raise SceneError(f"scene {shown} is {kind}, not a scene file")
+        if st.st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"scene file {shown} is {st.st_size} bytes; at most {MAX_SCENE_BYTES} are read")
+        chunks, size = [], 0
+        while size <= MAX_SCENE_BYTES:      # a file that grows while being read is cut off here
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    except OSError as exc:
+        raise SceneError(f"scene file {shown} cannot be read: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if size > MAX_SCENE_BYTES:
+        raise SceneError(f"scene file {shown} is larger than {MAX_SCENE_BYTES} bytes")
+    data = b"".join(chunks)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"scene file {shown} is not UTF-8 text (byte {exc.start} is {data[exc.start]:#04x})") \
+            from None
+
+
+def node_scene(scene, n_flagella: int, scene_overrides) -> Scene:
+    """The scene a node runs: a scene name or file, its overrides, and n_flagella (0 keeps the scene's).
+
+    Any failure is a SceneError with a one-line reason: a value of the wrong shape, a path that is not a readable
+    regular file, a file that is not valid TOML or not a valid scene, and anything the scene checks raise
+    besides SceneError (they are refused, not passed on as a crash of the node).
+    """
+    if not isinstance(scene, str) or not scene.strip():
+        raise SceneError(f"scene = {scene!r}: name a built-in scene (design1, design2, ...) or a .toml file")
+    reason = text_refusal("scene", scene)
+    overrides = list(scene_overrides)
+    if len(overrides) > MAX_OVERRIDES:
+        reason = f"scene_overrides has {len(overrides)} entries; at most {MAX_OVERRIDES} are accepted"
+    for o in overrides:
+        reason = reason or text_refusal("a scene_overrides entry", o)
+    if reason:
+        raise SceneError(reason)
+    try:
+        path = resolve_scene_path(scene)
+        text = read_scene_file(path)
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(f"{path}: not valid TOML: {exc}") from None
+        # as scene.load_scene does, but on text read by read_scene_file
+        if isinstance(data.get("scene", {}), dict):
+            data.setdefault("scene", {}).setdefault("name", path.stem)
+        result = scene_from_dict(data, source=str(path))
+        extra = node_overrides(n_flagella, overrides)
+        if extra:
+            result = result.with_overrides(extra)
+    except SceneError as exc:
+        raise SceneError(one_line(str(exc))) from None
+    except (RecursionError, MemoryError) as exc:
+        raise SceneError(f"scene {one_line(repr(scene), 120)}: too deeply nested or too large "
+                         f"({type(exc).__name__})") from None
+    except Exception as exc:  # noqa: BLE001 - a scene-check bug must refuse the value, not kill the node
+        raise SceneError(one_line(f"scene {scene!r} with overrides {overrides!r} is invalid: "
+                                  f"{type(exc).__name__}: {exc}")) from None
+    return result
+
+
+class TimeLimited:
+    """Run one piece of work at a time on a worker thread, waiting for it at most ``limit`` seconds.
+
+    For work done inside a set-parameters callback (a scene load and simulation build): the callback cannot be
+    answered asynchronously, so a pathological case must not hold the executor longer than the limit. Work that
+    overruns is abandoned (its result dropped when it finishes); until then further work is refused.
+    """
+
+    def __init__(self, limit: float, what: str):
+        self.limit = limit
+        self.what = what
+        self._thread: threading.Thread | None = None
+
+    def run(self, fn: Callable[[], T]) -> T:
+        if self._thread is not None and self._thread.is_alive():
+            raise SceneError(f"{self.what} that overran its {self.limit:g} s limit is still running; try later")
+        box: dict = {}
+
+        def work():
+            try:
+                box["value"] = fn()
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
+                box["error"] = exc
+
+        t = threading.Thread(target=work, name=self.what.replace(" ", "-"), daemon=True)
+        t.start()
+        t.join(self.limit)
+        if t.is_alive():
+            self._thread = t
+            raise SceneError(f"{self.what} took longer than {self.limit:g} s; refused")
+        if "error" in box:
+            raise box["error"]
+        return box["value"]
 
 
 def scene_request(node, new: dict) -> Scene | None:
     """The scene the node would run once ``new`` parameter values apply, or None if they leave the scene alone.
 
-    Raises SceneError (or ValueError) with the reason when the combination is invalid.
+    Raises SceneError with the reason when the combination is invalid.
     """
     if not set(SCENE_PARAMS) & set(new):
         return None

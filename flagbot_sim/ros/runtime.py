@@ -5,10 +5,14 @@ inside a callback that is publishing; under load that race crashed sim_node with
 (seen once in ~70 signal-shutdown runs). So processes here take the signals themselves: the handler only
 raises a flag, the spin loop notices it within one wait slice and tears down in order on the main thread.
 A second signal falls through to the default action, so a hung teardown can still be interrupted.
+
+Before rclpy.init, :func:`flagbot_sim.ros.dds.configure_dds` keeps DDS on the loopback interface unless the user
+opted in (see that module).
 """
 from __future__ import annotations
 
 import contextlib
+import re
 import signal
 import sys
 import threading
@@ -19,6 +23,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
+
+from .dds import configure_dds
 
 SLICE = 0.1     # s: longest wait before a stop request is noticed
 
@@ -82,6 +88,7 @@ def ros_process(args: list[str] | None) -> Iterator[StopRequest]:
     The body tears its own nodes down; the context is shut down on exit.
     """
     stop = StopRequest()
+    configure_dds()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop.install()
     try:
@@ -91,40 +98,79 @@ def ros_process(args: list[str] | None) -> Iterator[StopRequest]:
         rclpy.try_shutdown()
 
 
+class RosArgsError(ValueError):
+    """The ``--ros-args`` section cannot be parsed (e.g. ``-p scene:=`` with no value)."""
+
+
+def _rcl_message(exc: Exception) -> str:
+    # rcl appends the C source location of every layer (", at /project/src/rcl/arguments.c:352"): not for users
+    return one_line(re.sub(r",? at /\S+:\d+", "", str(exc)))
+
+
 def user_args(argv: list[str]) -> list[str]:
-    """The program's own arguments: ``argv`` without argv[0] and without its ``--ros-args ... [--]`` sections."""
-    return remove_ros_args(argv)[1:]
+    """The program's own arguments: ``argv`` without argv[0] and without its ``--ros-args ... [--]`` sections.
+
+    Raises RosArgsError (one line) when the ROS arguments cannot be parsed."""
+    try:
+        return remove_ros_args(argv)[1:]
+    except Exception as exc:  # noqa: BLE001 - rclpy raises its own RCL error types here
+        raise RosArgsError(_rcl_message(exc)) from None
 
 
 def wants_help(argv: list[str]) -> bool:
-    """-h/--help among the program's own arguments (not a ROS argument)."""
-    user = user_args(argv)
+    """-h/--help among the program's own arguments (not a ROS argument); False if the ROS arguments are invalid
+    (run_node then reports them)."""
+    try:
+        user = user_args(argv)
+    except RosArgsError:
+        return False
     return "-h" in user or "--help" in user
 
 
+def one_line(text: str, limit: int = 300) -> str:
+    """``text`` on one line, at most ``limit`` characters (an error message that echoes a huge value stays short)."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def run_node(make_node: Callable[[], object], argv: list[str] | None = None) -> int:
-    """Create the node, spin it until SIGINT/SIGTERM or rclpy shutdown, then tear everything down in order."""
+    """Create the node, spin it until SIGINT/SIGTERM or rclpy shutdown, then tear everything down in order.
+
+    Exit code: 2 when the node cannot start (one line on stderr, no traceback), else what the node's ``close()``
+    returns (an int; e.g. sim_node says 1 when a recording failed to write), else 0.
+    """
     argv = sys.argv if argv is None else argv
     code = 0
-    with ros_process(argv) as stop:
-        node = None
-        executor = SingleThreadedExecutor()
-        try:
-            node = make_node()
-            executor.add_node(node)
-            while not stop.is_set() and rclpy.ok():
-                executor.spin_once(timeout_sec=SLICE)
-        except (KeyboardInterrupt, ExternalShutdownException):
-            pass
-        except Exception as exc:
-            # a node that shut the context down from a callback (cmd_profile --exit-at-end) ends the loop
-            # normally; anything else (a bad parameter, a bad scene at startup) is one line, not a traceback
-            if rclpy.ok():
-                print(f"error: {exc}", file=sys.stderr)
-                code = 2
-        finally:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            release(executor, node)
+    try:
+        user_args(argv)
+    except RosArgsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        with ros_process(argv) as stop:
+            node = None
+            executor = SingleThreadedExecutor()
+            try:
+                node = make_node()
+                executor.add_node(node)
+                while not stop.is_set() and rclpy.ok():
+                    executor.spin_once(timeout_sec=SLICE)
+            except (KeyboardInterrupt, ExternalShutdownException):
+                pass
+            except Exception as exc:
+                # a node that shut the context down from a callback (cmd_profile --exit-at-end) ends the loop
+                # normally; anything else (a bad parameter, a bad scene at startup) is one line, not a traceback
+                if rclpy.ok():
+                    print(f"error: {one_line(str(exc) or type(exc).__name__)}", file=sys.stderr)
+                    code = 2
+            finally:
+                close = getattr(node, "close", None)
+                if close is not None:
+                    status = close()
+                    if isinstance(status, int) and status and not code:
+                        code = status
+                release(executor, node)
+    except Exception as exc:  # noqa: BLE001 - rclpy.init failed (ROS_DOMAIN_ID=abc), or the teardown did: one line
+        print(f"error: {_rcl_message(exc) or type(exc).__name__}", file=sys.stderr)
+        return 2
     return code

@@ -1,8 +1,14 @@
 """sim_node: the simulated flagellated robot as a ROS 2 device.
 
 Subscribes to the motor command (``cmd_omega``), steps the DER model in a wall-clock timer at the requested
-real-time factor, and publishes the head pose, odometry, head/flagellar spin, the flagella as markers, /clock and
-diagnostics. The interface is documented in msg_docs/sim_node.md (a test checks it against the live node).
+real-time factor, and publishes the head pose, odometry, head/flagellar spin, the flagella as markers, the URDF
+of head and plate, /clock and diagnostics. The interface is documented in msg_docs/sim_node.md (a test checks it
+against the live node).
+
+Parameter sets are transactions: everything a set implies (the scene load and simulation build, the new
+recording's file, the values' checks) is prepared before anything changes, so a refused set leaves parameters,
+simulation, timer and recording as they were. The simulator owns the clock: its timer runs on the steady wall
+clock whatever ``use_sim_time`` says, and every stamp is the simulated time it publishes on /clock.
 """
 from __future__ import annotations
 
@@ -16,22 +22,25 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock as RclClock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from .. import __version__, world
-from ..bag import BagError
 from ..physics import Simulation, StepFailed
 from ..scene import SceneError
+from ..urdf import robot_urdf
 from . import convert
 from .. import topics as names
-from .params import ParamSpec, command_refusal, declare, help_text, node_scene, scene_request
-from .runtime import run_node, wants_help
+from .dds import configure_dds
+from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
+                     node_scene, text_refusal)
+from .runtime import one_line, run_node, wants_help
 
 PARAMS = [
     ParamSpec("scene", "design1", "built-in scene name (design1, design2, ...) or path to a .toml scene file; "
@@ -55,8 +64,40 @@ PARAMS = [
     ParamSpec("child_frame_id", "head", "head body frame (odometry child frame)"),
 ]
 
+#: every parameter the node has: its own and rclpy's
+KNOWN_PARAMS = [s.name for s in PARAMS] + ["use_sim_time", "start_type_description_service"]
+
 STEP_BUDGET = 0.8       # fraction of a timer period spent stepping; the rest serves commands and services
 DIAG_PERIOD = 1.0       # s of wall time between diagnostics
+BUILD_LIMIT = 5.0       # s: longest a scene load + simulation build may hold a set-parameters call
+# flagellum edges in total: a step of 5300 edges took 0.14 s here, so beyond this one step outlasts many ticks
+# and the node could not serve commands between them (the scene itself allows 12 x 20000)
+MAX_NODE_EDGES = 5000
+
+
+class Refused(Exception):
+    """A parameter value (or combination) the node refuses; the message is the reason sent back."""
+
+
+def build_simulation(scene: str, n_flagella: int, scene_overrides) -> Simulation:
+    """The simulation a node runs for these parameter values; SceneError (one line) if it cannot be built."""
+    sc = node_scene(scene, n_flagella, scene_overrides)
+    edges = sc.robot.n_flagella * max(1, round(sc.flagellum.length / sc.flagellum.edge_length))
+    if edges > MAX_NODE_EDGES:
+        raise SceneError(f"{sc.robot.n_flagella} flagella of {edges // sc.robot.n_flagella} edges: sim_node runs "
+                         f"at most {MAX_NODE_EDGES} flagellum edges (a step would take longer than many ticks)")
+    try:
+        return Simulation(sc)
+    except SceneError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - an unbuildable scene is refused, never a crash of the node
+        raise SceneError(one_line(f"cannot build the simulation of scene {sc.scene.name}: "
+                                  f"{type(exc).__name__}: {exc}")) from None
+
+
+def recording_error(recorder) -> str:
+    """The recording's write error: '' while healthy (and without a recording); set once, kept until closed."""
+    return (recorder.error or "") if recorder is not None else ""
 
 
 class SimNode(Node):
@@ -64,7 +105,12 @@ class SimNode(Node):
         super().__init__("sim_node")
         declare(self, PARAMS)
         p = self._params()
-        self.sim = Simulation(node_scene(p["scene"], p["n_flagella"], p["scene_overrides"]))
+        try:
+            self._check_values(p)
+        except Refused as exc:
+            raise ValueError(str(exc)) from None
+        self.sim = build_simulation(p["scene"], p["n_flagella"], p["scene_overrides"])
+        self._builder = TimeLimited(BUILD_LIMIT, "the scene load and simulation build")
         self.publish_rate = p["publish_rate"]
         self.marker_rate = p["marker_rate"]
         self.rtf = p["real_time_factor"]
@@ -85,9 +131,14 @@ class SimNode(Node):
         self.pub_speed = self.create_publisher(Float64, names.SPEED, qos)
         self.pub_markers = self.create_publisher(MarkerArray, names.MARKERS, QoSProfile(depth=2))
         self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, qos)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_description = self.create_publisher(String, names.ROBOT_DESCRIPTION, latched)
         self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos)
         self.create_service(Trigger, names.RESET, self._on_reset)
         self.create_service(SetBool, names.PAUSE, self._on_pause)
+        self._description = ""
+        self._publish_description()
 
         self.paused = bool(p["start_paused"])
         self.rejected = 0
@@ -100,13 +151,20 @@ class SimNode(Node):
         self._last_diag = -math.inf
         self._rtf_window: deque[tuple[float, float]] = deque()    # (wall, sim time) over the last 2 s of wall time
         self._behind = False
+        self._marker_ids: set | None = None     # (ns, id) of the markers last published
         self.recorder = None
+        self.recording_failed = False            # a recording failed to write during this run: exit code 1
         if p["record"]:
-            self._start_recording(p)
-        self.timer = self.create_timer(1.0 / self.publish_rate, self._on_timer)
+            self.recorder = self._open_recorder(p, self.sim)
+            self.get_logger().info(f"recording to {self.recorder.path}")
+        self.timer = self._make_timer()
+        self._said_sim_time = False
         self.get_logger().info(
             f"flagbot_sim {__version__}: scene {self.sim.scene.scene.name}, n = {self.sim.scene.robot.n_flagella}, "
-            f"dt = {self.sim.dt} s, real_time_factor {self.rtf or 'max'}; waiting for {names.CMD_OMEGA}")
+            f"dt = {self.sim.dt} s, real_time_factor {self.rtf or 'max'}; {configure_dds()}; "
+            f"waiting for {names.CMD_OMEGA}")
+        if self.get_parameter("use_sim_time").value:
+            self._say_sim_time()
 
     # ------------------------------------------------------------------ time
     @property
@@ -116,6 +174,19 @@ class SimNode(Node):
     def _anchor(self) -> None:
         self._wall0 = time.monotonic()
         self._sim0 = self.sim.time
+
+    def _make_timer(self):
+        # the simulator owns /clock: a timer on the node clock would, with use_sim_time, wait for the /clock this
+        # node publishes itself (and never fire). The steady wall clock drives stepping and publishing either way
+        return self.create_timer(1.0 / self.publish_rate, self._on_timer,
+                                 clock=RclClock(clock_type=ClockType.STEADY_TIME))
+
+    def _say_sim_time(self) -> None:
+        if not self._said_sim_time:
+            self._said_sim_time = True
+            self.get_logger().info(
+                "use_sim_time is true: sim_node owns /clock, so it keeps stepping on the wall clock (at "
+                "real_time_factor) and publishing /clock; every stamp is the simulated time it publishes")
 
     def _params(self, new: dict | None = None) -> dict:
         """Every parameter's value once ``new`` applies.
@@ -128,30 +199,57 @@ class SimNode(Node):
         return p
 
     # ------------------------------------------------------------------ recording
-    def _start_recording(self, params: dict) -> None:
-        """Record to ``params["record"]``; ``params`` (every parameter's value) goes into the metadata."""
+    def _open_recorder(self, params: dict, sim: Simulation):
+        """A recorder on ``params["record"]`` with ``params`` (every parameter's value once the set applies) and
+        ``sim``'s resolved scene (file + overrides + n_flagella) in the metadata, so the recording alone
+        reproduces the run. Raises Refused with the reason if the file cannot be created or written."""
         from ..bag import RunMetadata
         from .recorder import Recorder
         path = params["record"]
         params = dict(params, scene_overrides=list(params["scene_overrides"]))
-        # the resolved scene (file + overrides + n_flagella), so the recording alone reproduces the run
-        meta = RunMetadata(scene_toml=self.sim.scene.to_toml(), parameters=params)
-        self.recorder = Recorder(self, path, None, meta)
-        self.get_logger().info(f"recording to {path}")
+        meta = RunMetadata(scene_toml=sim.scene.to_toml(), parameters=params)
+        try:
+            rec = Recorder(self, path, None, meta)
+        except Exception as exc:  # noqa: BLE001 - OSError, BagError or anything else: refused, with the reason
+            raise Refused(f"cannot record to {path!r}: {exc}") from None
+        err = recording_error(rec)
+        if err:         # opened, but writing its header already failed (a full disk): a file it cannot write
+            try:
+                rec.close()
+            except Exception:  # noqa: BLE001
+                pass
+            raise Refused(f"cannot record to {path!r}: {err}")
+        return rec
 
-    def _stop_recording(self) -> str:
-        if self.recorder is None:
-            return ""
-        s = self.recorder.close()
-        self.recorder = None
+    def _close_recording(self, rec) -> str:
+        """Close ``rec``; the summary line to report."""
+        try:
+            s = rec.close()
+        except Exception as exc:  # noqa: BLE001 - a close that fails is reported, it must not kill the node
+            self.recording_failed = True
+            return f"recording {getattr(rec, 'path', '?')} could not be closed: {type(exc).__name__}: {exc}"
+        if s.error:
+            self.recording_failed = True
         return (f"recording closed: {s.path}, {s.messages} messages on {len(s.topics)} topics, "
                 f"{s.duration:.1f} s, {s.size_bytes / 1024:.0f} KiB" + (f", ERROR {s.error}" if s.error else ""))
 
-    def close(self) -> None:
+    def _check_recording(self) -> str:
+        """The current recording's write error ('' if none). The recorder logs it itself, once."""
+        err = recording_error(self.recorder)
+        if err:
+            self.recording_failed = True
+        return err
+
+    def close(self) -> int:
+        """Close any recording. Exit code: 1 if a recording failed to write during the run, else 0."""
         # called after the context is gone (SIGINT/SIGTERM): plain print, rosout can no longer be published to
-        msg = self._stop_recording()
-        if msg:
-            print(msg, flush=True)
+        if self.recorder is not None:
+            rec, self.recorder = self.recorder, None
+            print(self._close_recording(rec), flush=True)
+        if self.recording_failed:
+            print("error: a recording failed to write during this run (exit code 1)", file=sys.stderr, flush=True)
+            return 1
+        return 0
 
     # ------------------------------------------------------------------ callbacks
     def _on_cmd(self, msg: Float64) -> None:
@@ -185,17 +283,57 @@ class SimNode(Node):
         response.message = "paused" if self.paused else "running"
         return response
 
+    def _check_values(self, p: dict) -> None:
+        """Refuse values that no later step would catch: frame ids, overlong strings, a non-bool use_sim_time,
+        and names this node does not have (rclpy 7 lets an undeclared parameter named '' through)."""
+        unknown = [n for n in p if n not in KNOWN_PARAMS]
+        if unknown:
+            raise Refused(one_line(f"unknown parameter {unknown[0]!r}; sim_node has: {', '.join(KNOWN_PARAMS)}"))
+        for name in ("frame_id", "child_frame_id"):
+            if name in p:
+                reason = frame_refusal(name, p[name])
+                if reason:
+                    raise Refused(reason)
+        for name in ("scene", "record"):
+            if name in p:
+                reason = text_refusal(name, p[name])
+                if reason:
+                    raise Refused(reason)
+        # rclpy's time source checks use_sim_time only after this node's callback has accepted the set
+        if "use_sim_time" in p and not isinstance(p["use_sim_time"], bool):
+            raise Refused("use_sim_time must be true or false")
+
     def _on_set_parameters(self, params) -> SetParametersResult:
         new = {p.name: p.value for p in params}
-        for name in ("frame_id", "child_frame_id"):
-            if name in new and not str(new[name]).strip():
-                return SetParametersResult(successful=False, reason=f"{name} must not be empty")
         try:
-            scene = scene_request(self, new)
-        except (SceneError, ValueError) as exc:
-            return SetParametersResult(successful=False, reason=str(exc))
-        if scene is not None:
-            sim = Simulation(scene)
+            plan = self._prepare(new)
+        except (Refused, SceneError) as exc:
+            return SetParametersResult(successful=False, reason=one_line(str(exc)))
+        except Exception as exc:  # noqa: BLE001 - no value may kill the node: refuse what was not foreseen
+            return SetParametersResult(successful=False, reason=one_line(f"{type(exc).__name__}: {exc}"))
+        self._apply(new, plan)
+        return SetParametersResult(successful=True)
+
+    def _prepare(self, new: dict) -> dict:
+        """Everything ``new`` implies, built but not yet in force; raises Refused or SceneError with the reason.
+
+        Order: plain checks, then the new simulation (loaded and built off the executor thread, at most
+        BUILD_LIMIT seconds), then the new recording's file last (the only step with an effect outside this
+        node: its recorder raises and leaves no file when it cannot create or write the file).
+        """
+        self._check_values(new)
+        after = self._params(new)
+        sim = None
+        if set(SCENE_PARAMS) & set(new):
+            sim = self._builder.run(lambda: build_simulation(after["scene"], after["n_flagella"],
+                                                             after["scene_overrides"]))
+        rec = self._open_recorder(after, sim or self.sim) if new.get("record") else None
+        return {"sim": sim, "recorder": rec}
+
+    def _apply(self, new: dict, plan: dict) -> None:
+        """Put a prepared set in force. Nothing here can refuse."""
+        sim = plan["sim"]
+        if sim is not None:
             if self.sim.model.driver is not None and sim.model.driver is not None:
                 sim.set_omega(self.sim.omega_T)
             self.time_offset += self.sim.time
@@ -207,23 +345,23 @@ class SimNode(Node):
             self.publish_rate = float(new["publish_rate"])
             self.timer.cancel()
             self.destroy_timer(self.timer)
-            self.timer = self.create_timer(1.0 / self.publish_rate, self._on_timer)
+            self.timer = self._make_timer()
         if "real_time_factor" in new:
             self.rtf = float(new["real_time_factor"])
             self._anchor()
         for name in ("marker_rate", "max_omega", "frame_id", "child_frame_id"):
             if name in new:
                 setattr(self, name, new[name])
+        if sim is not None or "child_frame_id" in new:
+            self._publish_description()
         if "record" in new:
-            msg = self._stop_recording()
-            if msg:
-                self.get_logger().info(msg)
-            if new["record"]:
-                try:
-                    self._start_recording(self._params(new))
-                except (OSError, ValueError, BagError) as exc:
-                    return SetParametersResult(successful=False, reason=f"cannot record to {new['record']!r}: {exc}")
-        return SetParametersResult(successful=True)
+            old, self.recorder = self.recorder, plan["recorder"]
+            if old is not None:
+                self.get_logger().info(self._close_recording(old))
+            if self.recorder is not None:
+                self.get_logger().info(f"recording to {self.recorder.path}")
+        if new.get("use_sim_time") is True:
+            self._say_sim_time()
 
     # ------------------------------------------------------------------ stepping
     def _on_timer(self) -> None:
@@ -305,9 +443,23 @@ class SimNode(Node):
         o = sim.observer.position(sim.initial)
         rigid = sim.rigid_polylines()
         head = world.to_world(rigid["head"][1], o) if "head" in rigid else None
-        return convert.markers_msg(
+        arr = convert.markers_msg(
             t, self.frame_id, [world.to_world(c, o) for c in sim.flagella_centrelines()], head,
             sim.scene.head.radius, [world.to_world(a, o) for a in rigid["plate"]], sim.scene.flagellum.radius)
+        ids = convert.marker_ids(arr)
+        if self._marker_ids is not None and ids != self._marker_ids:
+            # the set of markers changed (n_flagella, a scene without a head): clear the old ones first, or a
+            # removed flagellum would stay on screen
+            arr.markers.insert(0, convert.delete_all_marker(t, self.frame_id))
+        self._marker_ids = ids
+        return arr
+
+    def _publish_description(self) -> None:
+        """robot_description (latched): the URDF of head and plate, whenever it changes."""
+        text = robot_urdf(self.sim.scene, self.child_frame_id)
+        if text != self._description:
+            self._description = text
+            self.pub_description.publish(convert.string_msg(text))
 
     def _publish_diagnostics(self) -> None:
         sim, st = self.sim, self.sim.last_stats
@@ -321,8 +473,14 @@ class SimNode(Node):
         if self._behind:
             level, message = "WARN", (f"cannot keep up: real-time factor {achieved:.2f} achieved, "
                                       f"{self.rtf:g} requested")
-        if self.last_error:
-            level, message = "ERROR", self.last_error
+        # a failed recording stays an ERROR until the recording is stopped or restarted
+        rec_err = self._check_recording()
+        if self.last_error or rec_err:
+            parts = [self.last_error] if self.last_error else []
+            if rec_err:
+                parts.append(f"recording to {self.recorder.path} failed: {rec_err}; nothing more is written (set "
+                             f"record to '' or to a new file)")
+            level, message = "ERROR", "; ".join(parts)
         values = {
             "sim_time_s": f"{self.sim_time:.4f}", "omega_T_rad_s": f"{sim.omega_T:.6g}",
             "newton_iterations_last_step": st.newton_iterations, "residual_N": f"{st.residual:.3e}",
@@ -331,6 +489,8 @@ class SimNode(Node):
             "rejected_commands": self.rejected, "step_failures": self.step_failures,
             "withheld_non_finite": self.withheld, "steps": sim.steps, "scene": sim.scene.scene.name,
             "n_flagella": sim.scene.robot.n_flagella,
+            "recording": self.recorder.path if self.recorder is not None else "",
+            "recording_error": recording_error(self.recorder),
         }
         self.pub_diag.publish(convert.diagnostics_msg(self.sim_time, "flagbot_sim: simulator", level, message,
                                                       values))
@@ -341,7 +501,7 @@ def main(argv: list[str] | None = None) -> int:
     if wants_help(argv):
         print(help_text("sim_node", __doc__.strip().splitlines()[0], PARAMS,
                         "topics: sub cmd_omega; pub /clock, head_pose, odom, joint_states, omega_h, omega_t, speed, "
-                        "markers, /diagnostics; services: reset, pause"))
+                        "markers, robot_description, /diagnostics; services: ~/reset, ~/pause"))
         return 0
     return run_node(SimNode, argv)
 

@@ -1,0 +1,60 @@
+"""The node-side guards of flagbot_sim/ros/params.py on their own (no node): the time limit on work done inside a
+set-parameters callback, and the scene reader that never blocks."""
+import os
+import threading
+import time
+
+import pytest
+
+from flagbot_sim.ros.params import MAX_SCENE_BYTES, TimeLimited, node_scene, read_scene_file
+from flagbot_sim.scene import SceneError
+
+
+def test_time_limited_work_is_refused_when_it_overruns_and_blocks_nothing_after():
+    limited = TimeLimited(0.2, "the slow build")
+    release = threading.Event()
+    t0 = time.monotonic()
+    with pytest.raises(SceneError, match="took longer than 0.2 s"):
+        limited.run(lambda: release.wait(10))
+    assert time.monotonic() - t0 < 1.0                 # the caller got its answer at the limit
+    with pytest.raises(SceneError, match="still running"):
+        limited.run(lambda: 1)                         # the overrunning work has not finished: refuse more
+    release.set()
+    time.sleep(0.1)
+    assert limited.run(lambda: 42) == 42               # once it finished, work is accepted again
+    with pytest.raises(ZeroDivisionError):             # the work's own errors reach the caller
+        limited.run(lambda: 1 / 0)
+
+
+def test_scene_reader_refuses_fifos_directories_and_big_or_binary_files_without_blocking(tmp_path):
+    fifo = tmp_path / "s.toml"
+    os.mkfifo(fifo)              # nobody writes: a blocking open or read would hang this test
+    with pytest.raises(SceneError, match="FIFO"):
+        read_scene_file(fifo)
+    with pytest.raises(SceneError, match="directory"):
+        read_scene_file(tmp_path)
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"#" * (MAX_SCENE_BYTES + 1))
+    with pytest.raises(SceneError, match="bytes"):
+        read_scene_file(big)
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(b"[scene]\nname = \"caf\xe9\"\n")
+    with pytest.raises(SceneError, match="not UTF-8 text .byte 19 is 0xe9"):
+        read_scene_file(latin)
+    ok = tmp_path / "ok.toml"
+    ok.write_text("[robot]\nn_flagella = 3\n")
+    assert read_scene_file(ok) == "[robot]\nn_flagella = 3\n"
+    assert node_scene(str(ok), 0, []).robot.n_flagella == 3
+    assert node_scene(str(ok), 4, ["flagellum.length=0.2"]).robot.n_flagella == 4
+
+
+@pytest.mark.parametrize("scene, overrides, words", [
+    ("", [], "built-in scene"),
+    ("design1", ["scene.effects=[[1]]"], "TypeError"),          # a scene-check crash is a refusal
+    ("design1", ["x" * 100000], "at most 4096"),
+    ("design1", ["medium.mu=1"] * 65, "at most 64"),
+])
+def test_node_scene_turns_every_failure_into_a_short_scene_error(scene, overrides, words):
+    with pytest.raises(SceneError) as err:
+        node_scene(scene, 0, overrides)
+    assert words in str(err.value) and len(str(err.value)) <= 300 and "\n" not in str(err.value)
