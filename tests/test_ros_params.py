@@ -50,7 +50,7 @@ def test_scene_reader_refuses_fifos_directories_and_big_or_binary_files_without_
 
 @pytest.mark.parametrize("scene, overrides, words", [
     ("", [], "built-in scene"),
-    ("design1", ["scene.effects=[[1]]"], "TypeError"),          # a scene-check crash is a refusal
+    ("design1", ["scene.effects=[[1]]"], "scene.effects"),      # once a scene-check crash: now a refusal naming the key
     ("design1", ["x" * 100000], "at most 4096"),
     ("design1", ["medium.mu=1"] * 65, "at most 64"),
 ])

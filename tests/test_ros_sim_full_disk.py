@@ -12,7 +12,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 
 from ros_helpers import DISCOVERY_TIMEOUT, ChildProcess, Listener, set_params, spin_until
 
-LIMIT = 24 * 1024       # bytes: above the header and metadata, reached within a few seconds of recording
+LIMIT = 96 * 1024       # bytes: above the header, metadata and schemas, reached within a few seconds of recording
 
 
 def test_full_disk_during_recording(ros, tmp_path):

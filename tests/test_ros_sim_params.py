@@ -83,7 +83,7 @@ def files(tmp_path_factory):
 def test_bad_start_values_exit_non_zero_with_one_line(files):
     """Started as a user starts it: a bad value is a one-line error and exit 2, never a traceback or a hang."""
     # the ones that gave a traceback or froze (each is a process start: a handful, in parallel)
-    cases = {"scene:=\"\"": "scene", f"scene:={files / 'fifo.toml'}": "FIFO",
+    cases = {"scene:=\"\"": "scene", f"scene:={files / 'fifo.toml'}": "not a regular file",
              "scene_overrides:=[\"scene.effects=[[1]]\"]": "scene", "record:=/proc/x.mcap": "/proc/x.mcap",
              "scene:=": "parse"}
     procs = {arg: ChildProcess("-m", "flagbot_sim.ros.sim_node", "--ros-args", "-p", arg) for arg in cases}
