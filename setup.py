@@ -19,14 +19,14 @@ from setuptools import find_packages, setup
 package_name = "flagbot_sim"
 
 # name -> module:function; each also has a wrapper in scripts/ installed to lib/flagbot_sim/. The ROS processes
-# start through optional.py, which turns a missing rclpy into one line naming the [ros] extra.
+# start through console.py, which turns a missing rclpy into one line naming the [ros] extra.
 EXECUTABLES = {
     "flagbot": "flagbot_sim.cli:main",
-    "sim_node": "flagbot_sim.optional:sim_node",
-    "beam_node": "flagbot_sim.optional:beam_node",
-    "cmd_profile": "flagbot_sim.optional:cmd_profile",
-    "record": "flagbot_sim.optional:record",
-    "replay": "flagbot_sim.optional:replay",
+    "sim_node": "flagbot_sim.console:sim_node",
+    "beam_node": "flagbot_sim.console:beam_node",
+    "cmd_profile": "flagbot_sim.console:cmd_profile",
+    "record": "flagbot_sim.console:record",
+    "replay": "flagbot_sim.console:replay",
 }
 
 INSTALL_REQUIRES = [
