@@ -53,7 +53,7 @@ setup(
     name=package_name,
     version=re.search(r'__version__ = "(.+)"', Path("flagbot_sim/__init__.py").read_text()).group(1),
     packages=find_packages(include=["flagbot_sim", "flagbot_sim.*"]),
-    package_data={"flagbot_sim": ["scenes/*.toml"]},
+    package_data={"flagbot_sim": ["scenes/*.toml", "view/*.foxglove-layout.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
@@ -61,6 +61,7 @@ setup(
         ("share/" + package_name + "/msg_docs", sorted(glob("msg_docs/*.md"))),
         ("share/" + package_name + "/launch", sorted(glob("launch/*.py"))),
         ("share/" + package_name + "/urdf", sorted(glob("urdf/*.urdf"))),
+        ("share/" + package_name + "/foxglove", sorted(glob("flagbot_sim/view/*.foxglove-layout.json"))),
         ("lib/" + package_name, ["scripts/" + name for name in EXECUTABLES]),
     ],
     python_requires=">=3.11",           # tomllib
