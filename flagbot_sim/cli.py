@@ -15,7 +15,7 @@ from .scene import RPM, SceneError, load_scene
 
 #: modules that contribute subcommands (each has register(subparsers)); missing ones are skipped
 COMMAND_MODULES = ["flagbot_sim.beam.cli", "flagbot_sim.ros.demo", "flagbot_sim.bench", "flagbot_sim.sweep",
-                   "flagbot_sim.bagtools"]
+                   "flagbot_sim.bagtools", "flagbot_sim.view.render"]
 
 
 def cmd_run(args) -> int:
@@ -29,8 +29,12 @@ def cmd_run(args) -> int:
     sim = Simulation(scene)
     bar = ProgressBar(duration, label=scene.scene.name, enabled=not args.json and not args.quiet)
     n_steps = max(1, int(round(duration / scene.time.dt)))     # as Simulation.run counts them
+    from .view.cli import RunView
+    view = RunView.from_args(args)      # --view: the run served to the Foxglove app (view/cli.py), else None
 
     def progress(s) -> None:
+        if view is not None:
+            view.tick(s)
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
@@ -39,11 +43,16 @@ def cmd_run(args) -> int:
 
     error = None
     try:
+        if view is not None:
+            view.start(sim)
         sim.run(duration, callback=progress)
     except StepFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
         error = f"interrupted at t = {sim.time:.3f} s"
+    finally:
+        if view is not None:
+            view.close(sim)
     bar.close()
     out = sim.summary()
     if error:
@@ -87,6 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    from .view.args import add_view_arguments
+    add_view_arguments(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("scenes", help="list built-in scenes and the scene keys with units and ranges")
     p.set_defaults(func=cmd_scenes)
