@@ -57,10 +57,11 @@ class Row:
     steady: bool = True
     frames: list = field(default_factory=list)   # RobotGeometry for the animation
     note: str = ""
+    source: str = ""                  # the recording's file name (shown in the caption)
 
     def caption(self) -> str:
         v = self.values
-        s = (rf"{self.label}: $\omega_T$ = {v['omega_T'] / RPM:.0f} rpm ({v['omega_T']:.2f} rad/s), "
+        s = (rf"{self.label}{f' ({self.source})' if self.source else ''}: $\omega_T$ = {v['omega_T'] / RPM:.0f} rpm ({v['omega_T']:.2f} rad/s), "
              rf"$\omega_h$ = {v['omega_h']:.3f} rad/s, $\omega_t$ = {v['omega_t']:.3f} rad/s, "
              rf"$v$ = {1e3 * v['v']:.3f} mm/s")
         if not self.steady:
@@ -158,8 +159,8 @@ def recorded_row(path, *, times: list[float] | None = None, snapshots: int = DEF
     values = {"omega_T": s["omega_T"], "omega_h": s["omega_h"], "omega_t": s["omega_t"], "v": s["v"]}
     n = run.frames[0].n
     note = "shape re-simulated" if run.source == "resimulated" else ""
-    return Row(label or f"n = {n} ({Path(path).name})", [run.at(t) for t in times], values, frames=
-               [run.at(t) for t in _window(times, frames)] if frames else [], note=note)
+    return Row(label or f"n = {n}", [run.at(t) for t in times], values, note=note, source=Path(path).name,
+               frames=[run.at(t) for t in _window(times, frames)] if frames else [])
 
 
 def is_recording(source: str) -> bool:
@@ -437,7 +438,7 @@ def build_rows(args, log=None) -> tuple[list[Row], str]:
         if is_recording(src):
             rows.append(recorded_row(src, times=times, snapshots=args.snapshots, frames=frames,
                                      namespace=args.namespace))
-            titles.append(Path(src).name)
+            titles.append(f"recording {Path(src).name}")
             continue
         base = load_scene(src, args.overrides)
         ns = [int(n) for n in _floats(args.n, "--n")] if args.n else ([base.robot.n_flagella] if base.clamped
