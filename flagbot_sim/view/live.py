@@ -131,10 +131,11 @@ class LiveView:
 
     def publish(self, geom: RobotGeometry, *, force: bool = False) -> bool:
         """Publish a ready :class:`RobotGeometry` (a recording's, a simulation's) under the same rules as
-        :meth:`update`. Nothing non-finite is published: such a geometry is skipped (False)."""
+        :meth:`update`: True if sent to a subscribed client. Nothing non-finite is published: such a geometry is
+        skipped (False)."""
         msgs = self._msgs
         with self._lock:
-            if self._closed or not (force or self._due(False)):
+            if self._closed or not (force or self._due(False)) or not self.has_clients():
                 return False
             now = time.monotonic()
             self._last = now

@@ -15,7 +15,7 @@ from .recorded import RecordedRun, load
 
 def play(run: RecordedRun, view, *, rate: float = 1.0, loop: bool = False, start_offset: float = 0.0,
          stop: threading.Event | None = None) -> int:
-    """Publish ``run``'s frames to ``view`` at ``rate`` times their recorded pace; the number published."""
+    """Publish ``run``'s frames to ``view`` at ``rate`` times their recorded pace; the number sent to a client."""
     if not rate > 0:
         raise ValueError(f"--rate must be > 0, got {rate}")
     stop = stop or threading.Event()
@@ -61,6 +61,6 @@ def cmd_replay_view(args) -> int:
     finally:
         view.close()
     span = run.frames[-1].t - run.frames[0].t
-    print(f"showed {'(interrupted)' if shown is None else shown} of {len(run.frames)} frames ({run.source}) "
-          f"spanning {span:.3f} s of simulated time", flush=True)
+    sent = "interrupted" if shown is None else f"sent {shown} of {len(run.frames)} frames to the view"
+    print(f"{sent} ({run.source}, {span:.3f} s of simulated time)", flush=True)
     return 0
