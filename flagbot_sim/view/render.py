@@ -327,7 +327,7 @@ def figure(rows: list[Row], *, title: str = "", width: float = 16.0, dpi: float 
             axes.append((ri, ci, ax, ax_end))
         y = y_end - row_gap
     caption = ["Snapshots of the robot's shape, all drawn to one scale in the world frame (x forward); dashed "
-               "line: the head's front at the row's first snapshot; black bar: 2 cm."] + [r.caption() for r in rows]
+               "line: the robot's front at the row's first snapshot; black bar: 2 cm."] + [r.caption() for r in rows]
     for k, line in enumerate(caption):
         fig.text(left / width, (bottom - 0.2 - 0.22 * k) / height, line, fontsize=label_fs + 1, ha="left",
                  va="top")
@@ -453,7 +453,7 @@ def build_rows(args, log=None) -> tuple[list[Row], str]:
         titles.append(f"scene {base.scene.name} ($L$ = {1e3 * base.flagellum.length:.0f} mm{head}, $L_p$ = "
                       f"{1e3 * base.plate.diameter:.0f} mm), $\\omega_T$ = {base.omega_T / RPM:.0f} rpm")
     when = ("at the times given" if times else
-            "over one flagellar revolution once steady (equal steps of $2\\pi/\\omega_t$)")
+            "over one flagellar revolution after the run-up to steady state (steps of $2\\pi/\\omega_t$)")
     return rows, "; ".join(titles) + ": " + when
 
 
