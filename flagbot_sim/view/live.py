@@ -164,8 +164,11 @@ class LiveView:
         return time.monotonic() - self._last >= self.min_interval
 
     # ------------------------------------------------------------------------------------------ lifetime
-    def close(self) -> None:
-        """Stop the server and close the channels (idempotent)."""
+    def close(self, linger: float = 0.25) -> None:
+        """Stop the server and close the channels (idempotent). With a client subscribed, first wait ``linger``
+        seconds: the SDK sends from its own threads, and stopping at once can drop the last messages queued."""
+        if linger > 0 and self.has_clients():
+            time.sleep(linger)
         with self._lock:
             if self._closed:
                 return
