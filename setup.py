@@ -19,14 +19,14 @@ from setuptools import find_packages, setup
 package_name = "flagbot_sim"
 
 # name -> module:function; each also has a wrapper in scripts/ installed to lib/flagbot_sim/. The ROS processes
-# start through optional.py, which turns a missing rclpy into one line naming the [ros] extra.
+# start through console.py, which turns a missing rclpy into one line naming the [ros] extra.
 EXECUTABLES = {
     "flagbot": "flagbot_sim.cli:main",
-    "sim_node": "flagbot_sim.optional:sim_node",
-    "beam_node": "flagbot_sim.optional:beam_node",
-    "cmd_profile": "flagbot_sim.optional:cmd_profile",
-    "record": "flagbot_sim.optional:record",
-    "replay": "flagbot_sim.optional:replay",
+    "sim_node": "flagbot_sim.console:sim_node",
+    "beam_node": "flagbot_sim.console:beam_node",
+    "cmd_profile": "flagbot_sim.console:cmd_profile",
+    "record": "flagbot_sim.console:record",
+    "replay": "flagbot_sim.console:replay",
 }
 
 INSTALL_REQUIRES = [
@@ -53,7 +53,7 @@ setup(
     name=package_name,
     version=re.search(r'__version__ = "(.+)"', Path("flagbot_sim/__init__.py").read_text()).group(1),
     packages=find_packages(include=["flagbot_sim", "flagbot_sim.*"]),
-    package_data={"flagbot_sim": ["scenes/*.toml", "ros/*.xml"]},
+    package_data={"flagbot_sim": ["scenes/*.toml", "ros/*.xml", "view/*.foxglove-layout.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
@@ -61,6 +61,7 @@ setup(
         ("share/" + package_name + "/msg_docs", sorted(glob("msg_docs/*.md"))),
         ("share/" + package_name + "/launch", sorted(glob("launch/*.py"))),
         ("share/" + package_name + "/urdf", sorted(glob("urdf/*.urdf"))),
+        ("share/" + package_name + "/foxglove", sorted(glob("flagbot_sim/view/*.foxglove-layout.json"))),
         ("lib/" + package_name, ["scripts/" + name for name in EXECUTABLES]),
     ],
     python_requires=">=3.11",           # tomllib

@@ -35,6 +35,9 @@ def cmd_replay(args) -> int:
     if args.resimulate:
         from .resim import cmd_resimulate
         return cmd_resimulate(args)
+    if args.view:
+        from .view.replay import cmd_replay_view
+        return cmd_replay_view(args)
     try:
         from .ros.replay import run
         return run(args, ros_args=["replay"])

@@ -39,6 +39,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("flagbot_sim.bagtools", "replay an MCAP recording with its timing and /clock"),
     "bag-summary": ("flagbot_sim.bagtools", "topics, counts, duration and the steady state of each omega_T step"),
     "bag-recover": ("flagbot_sim.bagtools", "rewrite the readable part of a damaged MCAP file into a valid one"),
+    "render": ("flagbot_sim.view.render", "draw the paper's Fig. 1 snapshots of the robot's shape from a run, a "
+                                          "recording or a scene (PNG, or GIF animation)"),
 }
 
 #: modules that contribute subcommands, in the order they are registered when all are wanted
@@ -83,8 +85,12 @@ def cmd_run(args) -> int:
     startup = process_age()
     bar = ProgressBar(duration, label=scene.scene.name, enabled=not args.json and not args.quiet)
     n_steps = max(1, int(round(duration / scene.time.dt)))     # as Simulation.run counts them
+    from .view.cli import RunView
+    view = RunView.from_args(args)      # --view: the run served to the Foxglove app (view/cli.py), else None
 
     def progress(s) -> None:
+        if view is not None:
+            view.tick(s)
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
@@ -93,11 +99,16 @@ def cmd_run(args) -> int:
 
     error = None
     try:
+        if view is not None:
+            view.start(sim)
         sim.run(duration, callback=progress)
     except StepFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
         error = f"interrupted at t = {sim.time:.3f} s"
+    finally:
+        if view is not None:
+            view.close(sim)
     bar.close()
     out = sim.summary()
     out.setdefault("startup_seconds", startup)
@@ -189,6 +200,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    from .view.args import add_view_arguments
+    add_view_arguments(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("scenes", help="list built-in scenes and the scene keys with units and ranges")
     p.set_defaults(func=cmd_scenes)

@@ -65,27 +65,3 @@ def missing_ros(exc: ImportError, purpose: str) -> MissingExtra | None:
     if isinstance(exc, ModuleNotFoundError) and (exc.name or "").split(".")[0] in ROS_MODULES:
         return MissingExtra("ros", purpose)
     return None
-
-
-def ros_entry(module: str, prog: str):
-    """A console-script ``main`` for a ROS process: without ROS 2 it prints one line and exits 1 instead of a
-    traceback; otherwise it runs ``module.main``."""
-    def main() -> int:
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if (missing := missing_ros(exc, prog)) is None:
-                raise
-            print(missing, file=sys.stderr)
-            return 1
-        return mod.main()
-    main.__name__ = main.__qualname__ = prog
-    return main
-
-
-# console-script targets (setup.py entry_points): the ROS processes go through ros_entry
-sim_node = ros_entry("flagbot_sim.ros.sim_node", "sim_node")
-beam_node = ros_entry("flagbot_sim.ros.beam_node", "beam_node")
-cmd_profile = ros_entry("flagbot_sim.ros.cmd_profile", "cmd_profile")
-record = ros_entry("flagbot_sim.ros.recorder", "record")
-replay = ros_entry("flagbot_sim.ros.replay", "replay")

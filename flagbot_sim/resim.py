@@ -121,6 +121,23 @@ def command_schedule(t: np.ndarray, angle: np.ndarray, rate: np.ndarray, dt: flo
     return schedule, notes
 
 
+def recorded_scene(meta, path):
+    """The scene a recording ran (its ``flagbot_sim`` metadata: scene file + the node's overrides)."""
+    if meta is None or not meta.scene_toml:
+        raise ResimulationError(f"{path}: no flagbot_sim metadata with the scene: not recorded by sim_node's "
+                                "`record` parameter or `record --params-from /sim_node`")
+    try:
+        scene = scene_from_dict(tomllib.loads(meta.scene_toml))
+        # a standalone recorder stores the scene file as written: apply the node's overrides (idempotent on the
+        # resolved scene that sim_node's own recorder stores)
+        extra = node_overrides(meta.parameters.get("n_flagella", 0), meta.parameters.get("scene_overrides", []))
+        if extra:
+            scene = scene.with_overrides(extra)
+    except (SceneError, tomllib.TOMLDecodeError) as exc:
+        raise ResimulationError(f"{path}: the recorded scene does not load: {exc}") from None
+    return scene
+
+
 def resimulate(path, namespace: str | None = None, progress=None) -> Resimulation:
     """Re-simulate a recording; ``progress(fraction)`` is called as it goes."""
     with BagReader(path) as r:
@@ -139,15 +156,7 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
     motor = motor_samples(js)
     if motor is None:
         raise ResimulationError(f"{path}: joint_states has no 'motor' joint (recorded by an older version?)")
-    try:
-        scene = scene_from_dict(tomllib.loads(meta.scene_toml))
-        # a standalone recorder stores the scene file as written: apply the node's overrides (idempotent on the
-        # resolved scene that sim_node's own recorder stores)
-        extra = node_overrides(meta.parameters.get("n_flagella", 0), meta.parameters.get("scene_overrides", []))
-        if extra:
-            scene = scene.with_overrides(extra)
-    except (SceneError, tomllib.TOMLDecodeError) as exc:
-        raise ResimulationError(f"{path}: the recorded scene does not load: {exc}") from None
+    scene = recorded_scene(meta, path)
     # a reset (motor angle back to zero) ends what can be compared
     samples, t, angle, rate = motor
     drop = np.nonzero(np.diff(angle) * np.sign(rate[:-1] + 1e-300) < -1e-9)[0]

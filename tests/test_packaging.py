@@ -223,7 +223,7 @@ def test_launch_file_names_only_what_the_installed_package_has(prefix):
 
 # ----------------------------------------------------------------------------------- optional parts, missing
 @pytest.mark.parametrize("call, prog", [
-    ("from flagbot_sim.optional import sim_node; sys.exit(sim_node())", "sim_node"),
+    ("from flagbot_sim.console import sim_node; sys.exit(sim_node())", "sim_node"),
     ("from flagbot_sim.cli import main; sys.exit(main(['record', '-o', 'x.mcap']))", "flagbot record"),
     ("from flagbot_sim.cli import main; sys.exit(main(['replay', 'x.mcap']))", "flagbot replay"),
 ])

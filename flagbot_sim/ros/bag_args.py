@@ -56,6 +56,8 @@ def add_replay_arguments(p: argparse.ArgumentParser) -> None:
                         "the largest difference in pose, omega_h and omega_t against the recording and a verdict "
                         "(exit 1 when it exceeds the solver tolerance)")
     p.add_argument("--json", action="store_true", help="with --resimulate: print the report as JSON")
+    from ..view.args import add_view_arguments    # --view: no ROS, the recording played into the Foxglove view
+    add_view_arguments(p, pacing=False)
 
 
 def fail(exc: Exception) -> int:

@@ -259,6 +259,9 @@ def command(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
     if args.resimulate:
         from ..resim import cmd_resimulate
         return cmd_resimulate(args)
+    if args.view:
+        from ..view.replay import cmd_replay_view
+        return cmd_replay_view(args)
     return run(args, ros_args=ros_args or ["replay"])
 
 

@@ -1,0 +1,15 @@
+"""See the robot: a live 3-D view in Foxglove and the paper's Fig. 1 snapshots.
+
+- :mod:`.geometry`   :class:`RobotGeometry`, the drawable shape at one instant (from a simulation or a recording);
+                     pure numpy;
+- :mod:`.scene_msgs` Foxglove messages of it (SceneUpdate, FrameTransforms, the plotted numbers): ``[view]`` extra;
+- :mod:`.live`       :class:`~.live.LiveView`, the Foxglove WebSocket server (``flagbot run --view``, sim_node);
+- :mod:`.replay`     a recording played into a LiveView (``flagbot replay --view``), no ROS needed;
+- :mod:`.render`     the paper's Fig. 1 layout drawn with matplotlib (``flagbot render``), and its GIF;
+- :mod:`.cli`        the ``render`` command and the ``--view`` options of ``flagbot run``.
+
+Nothing here imports ROS; only :mod:`.scene_msgs` and :mod:`.live` need foxglove-sdk, and only when used.
+"""
+from .geometry import RobotGeometry
+
+__all__ = ["RobotGeometry"]
