@@ -21,8 +21,9 @@ from flagbot_sim.sweep.task import make_task, run_der
 
 ROOT = Path(__file__).resolve().parents[1]
 # design 2 with a 50 mm flagellum: eta_p L^4/EI ~ 0.3 s, steady within ~3 s of simulated time, ~0.2 s per point
+# time-stepped (the engines, the detection, resuming are about that path; the steady method has its own tests)
 SMALL = ["design2", "--set", "flagellum.length=0.05", "--grid", "n=2,3", "--grid", "motor.omega_rpm=40,80",
-         "--t-max", "8", "--window", "1", "--quiet", "--no-plot"]
+         "--method", "time", "--t-max", "8", "--window", "1", "--quiet", "--no-plot"]
 #: columns that record when and where a row was computed, not what
 NOT_RESULTS = {"wall_seconds", "worker", "finished_at"}
 
@@ -143,7 +144,7 @@ def test_dask_local_cluster_listens_on_loopback_only():
 # ---------------------------------------------------------------- steady state
 def test_der_stops_at_a_detected_steady_state_that_a_long_run_confirms():
     scene = load_scene("design2", ["flagellum.length=0.05", "motor.omega_rpm=80"])
-    row = run_der(scene, SteadySettings(t_max=20.0, window=1.0, rtol=1e-3))
+    row = run_der(scene, SteadySettings(t_max=20.0, window=1.0, rtol=1e-3, method="time"))
     assert row["converged"] and not row["hit_cap"] and row["sim_time"] < 6.0
     assert row["change_omega_h"] < 1e-3 and row["change_v"] < 1e-3
     sim = Simulation(scene)
@@ -155,7 +156,7 @@ def test_der_stops_at_a_detected_steady_state_that_a_long_run_confirms():
 
 def test_a_run_that_cannot_settle_reports_the_cap():
     scene = load_scene("design2", ["flagellum.length=0.05", "motor.omega_rpm=80"])
-    row = run_der(scene, SteadySettings(t_max=4.0, window=1.0, rtol=1e-14))
+    row = run_der(scene, SteadySettings(t_max=4.0, window=1.0, rtol=1e-14, method="time"))
     assert row["hit_cap"] and not row["converged"] and row["steps"] == 400
     assert math.isfinite(row["v"]) and row["v"] > 0        # still reports its last-window rates
 
@@ -163,13 +164,34 @@ def test_a_run_that_cannot_settle_reports_the_cap():
 def test_cap_hits_are_in_the_csv_and_the_summary(tmp_path, capsys):
     out = tmp_path / "cap"
     code = main(["sweep", "design2", "--set", "flagellum.length=0.05", "--grid", "rpm=40,80", "--t-max", "3",
-                 "--window", "1", "--rtol", "1e-14", "--frameworks", "der,nlb", "--out", str(out), "--quiet"])
+                 "--window", "1", "--rtol", "1e-14", "--frameworks", "der,nlb", "--out", str(out), "--quiet",
+                 "--method", "time"])
     assert code == 0
     rows = read_results(out)
     der = [r for r in rows if r["framework"] == "der"]
     assert len(der) == 2 and all(r["hit_cap"] and not r["converged"] for r in der)
     assert not any(r["hit_cap"] for r in rows if r["framework"] == "nlb")
     assert "2 DER runs hit the time cap" in capsys.readouterr().out
+
+
+def test_steady_method_solves_each_point_directly_and_agrees_with_time_stepping(tmp_path):
+    """The default method: every DER row is the relative equilibrium (no simulated time), stable, with its
+    efficiency; and it agrees with the time-stepped method at the paper's dt (implicit Euler's own error, ~1%)."""
+    rows = {}
+    for method in ("steady", "time"):
+        out = tmp_path / method
+        assert main(["sweep", "design2", "--set", "flagellum.length=0.05", "--grid", "rpm=40,80", "--method",
+                     method, "--frameworks", "der,lb", "--out", str(out), "--quiet", "--no-plot"]) == 0
+        rows[method] = {r["omega_T_rpm"]: r for r in read_results(out) if r["framework"] == "der"}
+    for rpm, st in rows["steady"].items():
+        ts = rows["time"][rpm]
+        assert st["method"] == "steady" and st["converged"] and st["stable"] == "True" and math.isnan(st["sim_time"])
+        assert st["residual"] < 1e-6 and st["steps"] < 40           # Newton iterations, not time steps
+        assert st["v"] == pytest.approx(ts["v"], rel=3e-2) and st["omega_h"] == pytest.approx(ts["omega_h"], rel=1e-2)
+        assert st["power"] == pytest.approx(st["motor_torque"] * st["omega_T"], rel=1e-12) and st["power"] > 0
+        assert st["cost_of_transport"] > 0
+    lb = [r for r in read_results(tmp_path / "steady") if r["framework"] == "lb"]
+    assert all(r["method"] == "beam" and r["motor_torque"] > 0 for r in lb)
 
 
 # ---------------------------------------------------------------- resume

@@ -90,6 +90,18 @@ class Snapshot:
         return bool(np.all(np.isfinite(self.values())))
 
 
+#: standard gravity (m/s^2): the weight in the cost of transport, whatever the scene's gravity effect
+G_STANDARD = 9.80665
+
+
+def efficiency(torque: float, omega_T: float, v: float, mass: float) -> dict:
+    """Motor torque (N m), mechanical power torque x omega_T (W) and the cost of transport P / (m g |v|)
+    (dimensionless, None when the robot does not move); m is the robot's mass (kg)."""
+    power = torque * omega_T
+    cot = power / (mass * G_STANDARD * abs(v)) if abs(v) > V_FLOOR and mass > 0 else None
+    return {"motor_torque": torque, "power": power, "cost_of_transport": cot}
+
+
 class Observer:
     """Accumulates spin angles step by step; answers instantaneous and windowed rates over a bounded history."""
 

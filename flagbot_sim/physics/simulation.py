@@ -9,7 +9,7 @@ import numpy as np
 
 from . import warmup
 from .model import RobotModel
-from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector
+from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, efficiency
 from .stepper import Stepper, StepStats
 
 
@@ -230,6 +230,10 @@ class Simulation:
         if self.scene.clamped:
             F, T = self.medium_force_on_flagella()
             out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in self.clamp_frame_tip()])
+            torque = -float(T[0])             # what the clamp applies against the medium's torque
+        else:
+            torque = self.motor_torque()
+        out.update(efficiency(torque, self.omega_T, out["v"], float(self.model.net.node_mass.sum())))
         return out
 
 

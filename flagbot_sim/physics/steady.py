@@ -36,6 +36,7 @@ import scipy.sparse.linalg as spla
 from .effects import StepContext
 from .frames import EdgeFrames
 from .model import RobotModel, State
+from .observe import efficiency
 
 
 class SteadyFailed(RuntimeError):
@@ -410,6 +411,8 @@ def summary(model: RobotModel, sol: SteadySolution) -> dict:
         N = model.net.n_nodes
         tip = sol.q[: 3 * N].reshape(N, 3)[model.net.flagella_nodes[0][-1]]
         out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in tip])
+        torque = -float(T[0])                 # what the clamp applies against the medium's torque
     else:
-        out["motor_torque"] = motor_torque(model, sol)
+        torque = motor_torque(model, sol)
+    out.update(efficiency(torque, sol.omega_T, out["v"], float(model.net.node_mass.sum())))
     return out

@@ -45,6 +45,10 @@ def register(subparsers) -> None:
                    help="Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: a LocalCluster on 127.0.0.1)")
     p.add_argument("--workers", type=int, default=None, metavar="K",
                    help=f"worker processes for local / a Dask LocalCluster (default: cores, here {default_workers()})")
+    p.add_argument("--method", choices=("steady", "time"), default="steady",
+                   help="DER steady state of each point: 'steady' solves the relative equilibrium directly "
+                        "(milliseconds; time-stepped where none is found), 'time' runs the simulator to the "
+                        "steady-state rule (default: steady)")
     p.add_argument("--t-max", type=float, default=DEFAULT_T_MAX, metavar="S",
                    help=f"cap on simulated seconds per DER run (default {DEFAULT_T_MAX:g}); the CSV's hit_cap "
                         "says which points reached it")
@@ -98,7 +102,8 @@ def cmd_sweep(args) -> int:
     grid, points = validate(base, parse_grid(args.grid), base.overrides)     # base.overrides: the parsed --set
     settings = SteadySettings(t_max=args.t_max,
                               window=args.window if args.window is not None else base.observe.steady_window,
-                              rtol=args.rtol if args.rtol is not None else base.observe.steady_rtol)
+                              rtol=args.rtol if args.rtol is not None else base.observe.steady_rtol,
+                              method=args.method)
     settings.check()
     frameworks = _frameworks(args.frameworks)
     identity = manifest_identity(base.flat(), grid, settings.to_dict(), list(frameworks))

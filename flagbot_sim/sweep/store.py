@@ -20,16 +20,18 @@ from pathlib import Path
 from ..cliutil import dumps
 from .grid import Point, SweepError
 
-FORMAT = "flagbot_sim sweep 1"
+FORMAT = "flagbot_sim sweep 2"
 MANIFEST = "sweep.json"
 RESULTS = "results.csv"
 
 #: columns after the grid keys' own columns
 VALUE_COLUMNS = ["n", "L", "omega_T", "omega_T_rpm", "framework", "omega_h", "omega_t", "v", "omega_T_bar",
-                 "omega_h_bar", "v_bar", "w_tip_over_L", "converged", "hit_cap", "steps", "sim_time",
-                 "change_omega_h", "change_v", "wall_seconds", "worker", "finished_at", "error"]
+                 "omega_h_bar", "v_bar", "w_tip_over_L", "motor_torque", "power", "cost_of_transport", "method",
+                 "stable", "residual", "converged", "hit_cap", "steps", "sim_time", "change_omega_h", "change_v",
+                 "wall_seconds", "worker", "finished_at", "error"]
 FLOAT_COLUMNS = {"L", "omega_T", "omega_T_rpm", "omega_h", "omega_t", "v", "omega_T_bar", "omega_h_bar", "v_bar",
-                 "w_tip_over_L", "sim_time", "change_omega_h", "change_v", "wall_seconds", "finished_at"}
+                 "w_tip_over_L", "motor_torque", "power", "cost_of_transport", "residual", "sim_time",
+                 "change_omega_h", "change_v", "wall_seconds", "finished_at"}
 INT_COLUMNS = {"n", "steps"}
 BOOL_COLUMNS = {"converged", "hit_cap"}
 

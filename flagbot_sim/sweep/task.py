@@ -31,14 +31,21 @@ FRAMEWORK_LABELS = {"der": "DER", "lb": "LB", "nlb-nohead": "NLB w/o head", "nlb
 CONFIRM_CHECKS = 3
 
 
+#: how the DER steady state of a point is found: solved directly (the relative equilibrium), or time-stepped
+METHODS = ("steady", "time")
+
+
 @dataclass(frozen=True)
 class SteadySettings:
-    t_max: float          # s of simulated time: the cap
-    window: float         # s: rates are averaged over this
-    rtol: float           # relative change between consecutive windows counted as steady
+    t_max: float          # s of simulated time: the cap (time-stepping)
+    window: float         # s: rates are averaged over this (time-stepping)
+    rtol: float           # relative change between consecutive windows counted as steady (time-stepping)
+    method: str = "steady"   # "steady": the relative equilibrium, time-stepping where none is found; "time"
 
     def check(self) -> None:
         from .grid import SweepError
+        if self.method not in METHODS:
+            raise SweepError(f"--method {self.method!r}: choose one of {', '.join(METHODS)}")
         for name in ("t_max", "window", "rtol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -65,10 +72,51 @@ def task_scene(task: dict) -> Scene:
 
 
 def run_der(scene: Scene, settings: SteadySettings) -> dict:
+    """The DER steady state of one point: solved directly, or (method "time", or where no equilibrium is found)
+    time-stepped to the steady-state rule."""
+    if settings.method == "steady":
+        from ..physics.steady import SteadyFailed
+        try:
+            return run_der_steady(scene)
+        except SteadyFailed:
+            out = run_der_time(scene, settings)
+            out["method"] = "time (no equilibrium)"      # the solver's reason is not a failure of the point
+            return out
+    return run_der_time(scene, settings)
+
+
+def run_der_steady(scene: Scene) -> dict:
+    from ..physics import warmup
+    from ..physics.model import RobotModel
+    from ..physics.steady import SteadySolver, summary
+
+    warmup.ensure_compiled()
+    w0 = time.perf_counter()
+    model = RobotModel(scene)
+    solver = SteadySolver(model)
+    sol = solver.solve(scene.omega_T)
+    s = summary(model, sol)
+    stable = solver.stability(sol).stable
+    omega_T = scene.omega_T
+    return {"framework": "der", "error": "", "hit_cap": False, "converged": True, "method": "steady",
+            "stable": stable, "residual": sol.residual, "omega_h": s["omega_h"], "omega_t": s["omega_t"],
+            "v": s["v"], "omega_T_bar": scene.normalise_omega(omega_T),
+            "omega_h_bar": scene.normalise_omega(s["omega_h"]), "v_bar": scene.normalise_speed(s["v"]),
+            "w_tip_over_L": math.nan, "motor_torque": s["motor_torque"], "power": s["power"],
+            "cost_of_transport": _nan(s["cost_of_transport"]), "steps": sol.iterations, "sim_time": math.nan,
+            "change_omega_h": math.nan, "change_v": math.nan, "wall_seconds": time.perf_counter() - w0}
+
+
+def _nan(x):
+    return math.nan if x is None else x
+
+
+def run_der_time(scene: Scene, settings: SteadySettings) -> dict:
     from ..physics import Simulation, StepFailed
 
     w0 = time.perf_counter()
-    out = {"framework": "der", "error": "", "hit_cap": False, "converged": False}
+    out = {"framework": "der", "error": "", "hit_cap": False, "converged": False, "method": "time", "stable": "",
+           "residual": math.nan}
     sim = Simulation(scene, steady_window=settings.window, steady_rtol=settings.rtol)
     dt = scene.time.dt
     try:
@@ -83,9 +131,11 @@ def run_der(scene: Scene, settings: SteadySettings) -> dict:
         omega_h = omega_t = v = math.nan
     else:
         omega_h, omega_t, v = rates["omega_h"], rates["omega_t"], rates["v"]
+    eff = sim.summary()
     out.update(omega_h=omega_h, omega_t=omega_t, v=v, omega_T_bar=scene.normalise_omega(omega_T),
                omega_h_bar=scene.normalise_omega(omega_h), v_bar=scene.normalise_speed(v),
-               w_tip_over_L=math.nan, steps=sim.steps, sim_time=sim.time,
+               w_tip_over_L=math.nan, motor_torque=eff["motor_torque"], power=eff["power"],
+               cost_of_transport=_nan(eff["cost_of_transport"]), steps=sim.steps, sim_time=sim.time,
                change_omega_h=float(changes[0]) if len(changes) else math.nan,
                change_v=float(changes[1]) if len(changes) else math.nan,
                wall_seconds=time.perf_counter() - w0)
@@ -98,12 +148,26 @@ def run_beam(scene: Scene, regime: str) -> dict:
     w0 = time.perf_counter()
     # no warm start from a neighbouring point: each point must not depend on which others ran before it
     res = solve_balance(BeamParams.from_scene(scene), scene.omega_T, regime=regime, raise_on_failure=False)
+    # the motor's torque is the head's Stokes torque at the balance
+    eff = _beam_efficiency(scene, res.omega_h, res.v_h)
     return {"framework": regime, "omega_h": res.omega_h, "omega_t": res.omega_t, "v": res.v_h,
+            "method": "beam", "stable": "", "residual": math.nan, **eff,
             "omega_T_bar": res.omega_T_bar, "omega_h_bar": res.omega_h_bar, "v_bar": res.v_bar,
             "w_tip_over_L": res.w_tip_over_L, "steps": res.bvp_solves, "sim_time": math.nan,
             "change_omega_h": math.nan, "change_v": math.nan, "converged": bool(res.converged),
             "hit_cap": False, "error": "" if res.converged else res.message,
             "wall_seconds": time.perf_counter() - w0}
+
+
+def _beam_efficiency(scene: Scene, omega_h: float, v: float) -> dict:
+    from ..physics.network import build_network
+    from ..physics.observe import efficiency
+    torque = scene.head_torque_coefficient * omega_h
+    if not math.isfinite(torque):
+        return {"motor_torque": math.nan, "power": math.nan, "cost_of_transport": math.nan}
+    eff = efficiency(torque, scene.omega_T, v, float(build_network(scene).node_mass.sum()))
+    eff["cost_of_transport"] = _nan(eff["cost_of_transport"])
+    return eff
 
 
 def run_point(task: dict) -> dict:
@@ -121,7 +185,8 @@ def run_point(task: dict) -> dict:
             row = run_der(scene, settings) if fw == "der" else run_beam(scene, fw)
         except Exception as exc:   # noqa: BLE001 -- recorded in the CSV, the rest of the sweep goes on
             nan = math.nan
-            row = {"framework": fw, "omega_h": nan, "omega_t": nan, "v": nan,
+            row = {"framework": fw, "omega_h": nan, "omega_t": nan, "v": nan, "motor_torque": nan, "power": nan,
+                   "cost_of_transport": nan, "method": "", "stable": "", "residual": nan,
                    "omega_T_bar": scene.normalise_omega(scene.omega_T), "omega_h_bar": nan, "v_bar": nan,
                    "w_tip_over_L": nan, "steps": 0, "sim_time": nan, "change_omega_h": nan, "change_v": nan,
                    "converged": False, "hit_cap": False, "wall_seconds": nan,
