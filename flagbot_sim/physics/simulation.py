@@ -107,6 +107,7 @@ class Simulation:
         """Back to the initial state with the scene's command; counters and steady-state rule start over."""
         self.state = self.initial.copy()
         self._prev_state = None
+        self.stepper.reset()
         if self.model.driver is not None:
             self.model.driver.omega = self.scene.omega_T
         self.observer.reset(self.state)

@@ -40,6 +40,8 @@ class StepStats:
     line_search_cuts: int = 0
     substep_dts: list = field(default_factory=list)   # the accepted sub-steps, in order (s)
     rejections: int = 0            # error control: attempts rejected for their error estimate
+    jacobians: int = 0             # Jacobian evaluations + factorisations
+    chord_rejections: int = 0      # corrections with a kept factorisation that contracted too slowly
     error: float = 0.0             # error control: the accepted step's error norm (<= 1)
 
 
@@ -118,6 +120,13 @@ class BDF2:
 
 
 INTEGRATORS = {cls.name: cls for cls in (ImplicitEuler, BDF2)}
+
+#: a correction with a kept (not fresh) factorisation is accepted if it shrinks the residual at least this much
+CHORD_CONTRACTION = 0.25
+#: ... and used further only while the contraction it shows would reach the tolerance in this many more corrections
+CHORD_MAX_MORE = 2.0
+#: a factorisation made for dv/dq = 1/h ... serves steps whose coefficient differs by less than this (relative)
+REUSE_DV_CHANGE = 0.15
 
 
 # ----------------------------------------------------------------------------------------------- predictor
@@ -252,6 +261,9 @@ class Stepper:
         self._free_nodes = free[: 3 * N].reshape(N, 3).all(axis=1)
         self._free_twist = free[3 * N:]
         self._atol_twist = self.atol / model.length_scale
+        self._factored_dv = None          # integrator coefficient of the factorisation the solver holds
+        self._factored_pose = np.eye(3)   # and the robot's pose it was made at (see _rotated_solve)
+        self._rim = int(net.edges[net.plate_edges[0], 1])
 
     @property
     def adaptive(self) -> bool:
@@ -350,7 +362,74 @@ class Stepper:
     def _norm(self, r: np.ndarray) -> float:
         return float(np.max(np.abs(r * self._scale))) if len(r) else 0.0
 
+    def reset(self) -> None:
+        """Forget the Jacobian kept from earlier steps (a run restarted from its beginning repeats itself)."""
+        self._factored_dv = None
+
+    def _pose(self, q: np.ndarray) -> np.ndarray:
+        """Orthonormal frame (3x3, columns: axis, the first plate rim's direction from it, their cross product)
+        that turns with the robot: what relates the Jacobian of two configurations of a turning robot."""
+        i0, i1, i2 = self._axis_nodes
+        o = 3 * i2
+        if i0 != i2:
+            a0, a1, a2 = q[o] - q[3 * i0], q[o + 1] - q[3 * i0 + 1], q[o + 2] - q[3 * i0 + 2]
+        else:
+            a0, a1, a2 = 1.0, 0.0, 0.0
+        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        a0, a1, a2 = a0 / na, a1 / na, a2 / na
+        k = 3 * self._rim
+        u0, u1, u2 = q[k] - q[o], q[k + 1] - q[o + 1], q[k + 2] - q[o + 2]
+        ua = u0 * a0 + u1 * a1 + u2 * a2
+        u0, u1, u2 = u0 - ua * a0, u1 - ua * a1, u2 - ua * a2
+        nu = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+        u0, u1, u2 = u0 / nu, u1 / nu, u2 / nu
+        return np.array([[a0, u0, a1 * u2 - a2 * u1], [a1, u1, a2 * u0 - a0 * u2], [a2, u2, a0 * u1 - a1 * u0]])
+
+    def _rotated_solve(self, r: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Solve with the kept factorisation of an earlier configuration, turned to the current one.
+
+        The robot's Jacobian is equivariant under rotations (springs, RFT, the isotropic head drag and the masses
+        all are), so the Jacobian of the configuration turned by R is R J R^T on the node blocks (twist angles
+        are frame-relative and do not turn): J_now^-1 r = R J_then^-1 (R^T r). Without the turn, a factorisation
+        a step old is off by the stiff parts' stiffness times omega h and contracts nothing."""
+        N = self.model.net.n_nodes
+        R = self._pose(q) @ self._factored_pose.T
+        b = r.copy()
+        bx = b[: 3 * N].reshape(N, 3)
+        bx[:] = bx @ R                      # R^T applied to every node's 3-vector (rows)
+        x = self.solver.solve(b)
+        xx = x[: 3 * N].reshape(N, 3)
+        xx[:] = xx @ R.T
+        return x
+
+    def _reusable(self, plan: StepPlan) -> bool:
+        """Whether the factorised Jacobian kept from an earlier step can serve this one: it was made for nearly
+        the same integrator coefficient (the 1/h in dv/dq, which dominates how the Jacobian changes with h)."""
+        f = self._factored_dv
+        return f is not None and abs(plan.dv_dq / f - 1.0) < REUSE_DV_CHANGE
+
+    def _factor(self, ctx, plan: StepPlan, stats: StepStats) -> bool:
+        J = self.model.jacobian(ctx)
+        J[self._fix_slots] = 0.0
+        J[self._fix_diag] = 1.0
+        stats.jacobians += 1
+        self._factored_dv = None
+        try:
+            self.solver.factor(J)
+        except SingularJacobian:
+            return False
+        self._factored_dv = plan.dv_dq
+        self._factored_pose = self._pose(ctx.q)
+        return True
+
     def _attempt(self, state: State, h: float, stats: StepStats) -> State | None:
+        """One Newton solve of a step of size h from ``state``; None if it does not converge.
+
+        The Jacobian is evaluated and factorised lazily: most steps converge on the predictor and need none,
+        and a factorisation made for an earlier step (the Jacobian of a steadily turning robot changes by
+        ~omega h per step) serves as long as each correction with it shrinks the residual by CHORD_CONTRACTION;
+        when one does not, that correction is discarded and a fresh Jacobian is factorised where the iterate is.
+        Corrections with a fresh Jacobian are Newton steps with the line search."""
         model = self.model
         d = model.driver
         angle = state.drive_angle + (d.omega * h if d is not None else 0.0)
@@ -361,6 +440,8 @@ class Stepper:
         ctx = model.context(q, state, plan)
         r = model.residual(ctx)
         r[fixed] = 0.0
+        fresh = False                    # the factorisation in hand was made at an iterate of this attempt
+        chord = self._reusable(plan)     # ... or, usable as it is, at an earlier step
         merit_start = None
         watchdog = 3
         for it in range(self.max_iterations + 1):
@@ -372,19 +453,34 @@ class Stepper:
                 return self._accept(state, plan, ctx, stats, it)
             if it == self.max_iterations:
                 return None
-            # the residual alone decided so far: the Jacobian is needed only now (many steps converge on the
-            # predictor and never pay for it)
-            J = model.jacobian(ctx)
-            J[self._fix_slots] = 0.0
-            J[self._fix_diag] = 1.0
-            try:
-                self.solver.factor(J)
-                dq = -self.solver.solve(r)
-            except SingularJacobian:
-                return None
+            merit0 = float(np.linalg.norm(r * self._scale))
+            if chord:
+                dq = -self._rotated_solve(r, q)
+                q_try = q + dq
+                ctx_try = model.context(q_try, state, plan)
+                r_try = model.residual(ctx_try)
+                r_try[fixed] = 0.0
+                m = float(np.linalg.norm(r_try * self._scale))
+                if np.all(np.isfinite(dq)) and math.isfinite(m) and m <= CHORD_CONTRACTION * merit0:
+                    q, r, ctx = q_try, r_try, ctx_try
+                    # keep going with it only while it would reach the tolerance within a couple of corrections
+                    # (each costs a residual and a solve; a fresh Jacobian about three of them)
+                    m_max = self._norm(r_try)
+                    rho = m / merit0
+                    chord = m_max <= self.tol or (rho > 0.0 and
+                                                  math.log(self.tol / m_max) / math.log(rho) <= CHORD_MAX_MORE)
+                    continue
+                chord = False            # too slow a contraction: a fresh Jacobian here, and Newton steps
+                stats.chord_rejections += 1
+                if fresh:                # the current factorisation is from this attempt: refactorise anyway
+                    fresh = False
+            if not fresh:
+                if not self._factor(ctx, plan, stats):
+                    return None
+                fresh = True
+            dq = -self._rotated_solve(r, q)
             if not np.all(np.isfinite(dq)):
                 return None
-            merit0 = float(np.linalg.norm(r * self._scale))
             if merit_start is None:
                 merit_start = merit0
             alpha = 1.0
@@ -407,6 +503,9 @@ class Stepper:
                 if alpha < 1.0 / 64.0:
                     return None
             q, r, ctx = q_try, r_try, ctx_try
+            # the next correction may use this factorisation again (a chord step), while it contracts well
+            chord = alpha == 1.0
+            fresh = True
         return None
 
     def predict(self, state: State, h: float) -> np.ndarray:
