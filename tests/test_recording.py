@@ -39,10 +39,11 @@ def probe(ros):
         ros.destroy_client(cli)
 
 
-def run_recording_node(ros, tmp_path, record_at_launch=True):
+def run_recording_node(ros, tmp_path, record_at_launch=True, overrides=()):
     out = tmp_path / "run.mcap"
+    over = ", ".join(f'"{o}"' for o in ("flagellum.length=0.05", *overrides))
     args = ["--ros-args", "-p", "scene:=design2", "-p", "n_flagella:=3",
-            "-p", 'scene_overrides:=["flagellum.length=0.05"]', "-p", "real_time_factor:=4.0",
+            "-p", f"scene_overrides:=[{over}]", "-p", "real_time_factor:=4.0",
             "-p", "start_paused:=true", "-p", "initial_omega:=6.0"]
     if record_at_launch:
         args += ["-p", f"record:={out}"]
@@ -81,6 +82,30 @@ def test_sim_node_records_a_run_that_re_simulates_exactly(probe, tmp_path, at_la
     assert [w for _, w in res.commands][-1] == 9.0 and len(res.commands) >= 2
     assert res.max_position_error == 0.0 and res.max_omega_h_error == 0.0 and res.max_omega_t_error == 0.0
     assert res.samples > 10 and not res.notes
+
+
+def test_error_controlled_live_run_re_simulates_exactly(probe, tmp_path):
+    """With time.rtol set, sim_node takes the steps the error control picks (never cut to its ticks), so the
+    recording's re-simulation takes the same steps and reproduces the run exactly, command change included; and
+    simulated time on /clock only grows."""
+    proc, out = run_recording_node(probe, tmp_path, overrides=("time.integrator='bdf2'", "time.rtol=1e-3"))
+    code, log = proc.stop()
+    assert code == 0 and "Traceback" not in log, log
+    with BagReader(out) as r:
+        clock = [m.clock.sec + 1e-9 * m.clock.nanosec for _, _, m in r.decoded_many(["/clock"])["/clock"]]
+    assert clock == sorted(clock) and clock[-1] > 2.5
+    res = resimulate(out)
+    assert [w for _, w in res.commands][-1] == 9.0
+    assert res.max_position_error == 0.0 and res.max_omega_h_error == 0.0 and res.max_omega_t_error == 0.0
+    assert res.samples > 10 and not res.notes, res.notes
+    # and the steps really were the controller's: not multiples of time.dt
+    scene = load_scene("design2", ["flagellum.length=0.05", "robot.n_flagella=3", "time.integrator='bdf2'",
+                                   "time.rtol=1e-3"])
+    from flagbot_sim.physics import Simulation
+    sim = Simulation(scene)
+    sim.set_omega(6.0)
+    sizes = {round(sim.step().substep_dts[0], 12) for _ in range(20)}
+    assert len(sizes) > 3
 
 
 def test_sim_node_killed_at_the_worst_moment_loses_at_most_a_quarter_second_of_its_recording(tmp_path):

@@ -89,6 +89,13 @@ class Snapshot:
     def is_finite(self) -> bool:
         return bool(np.all(np.isfinite(self.values())))
 
+    def rotation(self) -> np.ndarray:
+        """The head body's rotation matrix in the fixed frame (from ``orientation``)."""
+        x, y, z, w = self.orientation
+        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
 
 #: standard gravity (m/s^2): the weight in the cost of transport, whatever the scene's gravity effect
 G_STANDARD = 9.80665

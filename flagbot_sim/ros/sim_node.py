@@ -15,9 +15,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections import deque
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
@@ -32,6 +30,7 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from .. import __version__, world
+from ..pacer import Pacer
 from ..physics import Simulation, StepFailed
 from ..scene import SceneError
 from ..urdf import robot_urdf
@@ -62,6 +61,10 @@ PARAMS = [
               "scene and all parameters); setting it starts a new recording, '' stops"),
     ParamSpec("frame_id", "world", "fixed frame of poses, odometry and markers"),
     ParamSpec("child_frame_id", "head", "head body frame (odometry child frame)"),
+    ParamSpec("foxglove_port", 0, "serve the live 3-D view to the Foxglove app on this WebSocket port (needs the "
+              "[view] extra); 0 = off", range=(0, 65535)),
+    ParamSpec("foxglove_host", "127.0.0.1", "address the live view listens on (loopback unless you say "
+              "otherwise)"),
 ]
 
 #: every parameter the node has: its own and rclpy's
@@ -146,17 +149,19 @@ class SimNode(Node):
         self.last_error = ""
         self.withheld = 0
         self.time_offset = 0.0           # keeps /clock monotonic across resets
-        self._anchor()
+        self.pacer = Pacer(self.rtf, self.sim.time)
         self._last_marker = -math.inf
         self._last_diag = -math.inf
-        self._rtf_window: deque[tuple[float, float]] = deque()    # (wall, sim time) over the last 2 s of wall time
-        self._behind = False
         self._marker_ids: set | None = None     # (ns, id) of the markers last published
         self.recorder = None
         self.recording_failed = False            # a recording failed to write during this run: exit code 1
         if p["record"]:
             self.recorder = self._open_recorder(p, self.sim)
             self.get_logger().info(f"recording to {self.recorder.path}")
+        self.view = None
+        if p["foxglove_port"]:
+            self.view = self._open_view(p)
+            self.get_logger().info(f"live view for the Foxglove app at {self.view.url}")
         self.timer = self._make_timer()
         self._said_sim_time = False
         self.get_logger().info(
@@ -172,8 +177,8 @@ class SimNode(Node):
         return self.time_offset + self.sim.time
 
     def _anchor(self) -> None:
-        self._wall0 = time.monotonic()
-        self._sim0 = self.sim.time
+        """Restart the real-time schedule at the present (after a reset, a pause, a rebuild)."""
+        self.pacer.anchor(self.sim.time)
 
     def _make_timer(self):
         # the simulator owns /clock: a timer on the node clock would, with use_sim_time, wait for the /clock this
@@ -221,6 +226,16 @@ class SimNode(Node):
             raise Refused(f"cannot record to {path!r}: {err}")
         return rec
 
+    def _open_view(self, params: dict):
+        """A live view on ``params["foxglove_port"]``; Refused with the reason if it cannot serve there."""
+        from ..optional import MissingExtra
+        try:
+            from ..view.live import LiveView, ViewError
+            return LiveView(host=params["foxglove_host"], port=int(params["foxglove_port"]), frame=params["frame_id"],
+                            child_frame=params["child_frame_id"])
+        except (MissingExtra, ViewError, ValueError, OSError) as exc:
+            raise Refused(one_line(str(exc))) from None
+
     def _close_recording(self, rec) -> str:
         """Close ``rec``; the summary line to report."""
         try:
@@ -243,6 +258,9 @@ class SimNode(Node):
     def close(self) -> int:
         """Close any recording. Exit code: 1 if a recording failed to write during the run, else 0."""
         # called after the context is gone (SIGINT/SIGTERM): plain print, rosout can no longer be published to
+        if self.view is not None:
+            self.view.close()
+            self.view = None
         if self.recorder is not None:
             rec, self.recorder = self.recorder, None
             print(self._close_recording(rec), flush=True)
@@ -294,7 +312,7 @@ class SimNode(Node):
                 reason = frame_refusal(name, p[name])
                 if reason:
                     raise Refused(reason)
-        for name in ("scene", "record"):
+        for name in ("scene", "record", "foxglove_host"):
             if name in p:
                 reason = text_refusal(name, p[name])
                 if reason:
@@ -328,7 +346,28 @@ class SimNode(Node):
             sim = self._builder.run(lambda: build_simulation(after["scene"], after["n_flagella"],
                                                              after["scene_overrides"]))
         rec = self._open_recorder(after, sim or self.sim) if new.get("record") else None
-        return {"sim": sim, "recorder": rec}
+        view = None
+        if ({"foxglove_port", "foxglove_host"} & set(new)) and after["foxglove_port"]:
+            try:
+                view = self._open_view(after)
+            except Refused:
+                if rec is not None:            # refused as a whole: the new recording's file goes too
+                    self._discard(rec)
+                raise
+        return {"sim": sim, "recorder": rec, "view": view}
+
+    def _discard(self, rec) -> None:
+        import os
+        path = getattr(rec, "path", None)
+        try:
+            rec.close()
+        except Exception:  # noqa: BLE001
+            pass
+        if path:
+            try:
+                os.remove(path)
+            except OSError:
+                pass
 
     def _apply(self, new: dict, plan: dict) -> None:
         """Put a prepared set in force. Nothing here can refuse."""
@@ -348,7 +387,7 @@ class SimNode(Node):
             self.timer = self._make_timer()
         if "real_time_factor" in new:
             self.rtf = float(new["real_time_factor"])
-            self._anchor()
+            self.pacer.set_rtf(self.rtf, self.sim.time)
         for name in ("marker_rate", "max_omega", "frame_id", "child_frame_id"):
             if name in new:
                 setattr(self, name, new[name])
@@ -360,6 +399,12 @@ class SimNode(Node):
                 self.get_logger().info(self._close_recording(old))
             if self.recorder is not None:
                 self.get_logger().info(f"recording to {self.recorder.path}")
+        if {"foxglove_port", "foxglove_host"} & set(new):
+            old, self.view = self.view, plan["view"]
+            if old is not None:
+                old.close(linger=0.0)
+            if self.view is not None:
+                self.get_logger().info(f"live view for the Foxglove app at {self.view.url}")
         if new.get("use_sim_time") is True:
             self._say_sim_time()
 
@@ -375,28 +420,11 @@ class SimNode(Node):
             self._publish_diagnostics()
 
     def _advance(self, wall_start: float) -> None:
-        budget = STEP_BUDGET / self.publish_rate
-        dt = self.sim.dt
-        if self.rtf > 0:
-            target = self._sim0 + self.rtf * (wall_start - self._wall0)
-            while self.sim.time + 0.5 * dt <= target and time.monotonic() - wall_start < budget:
-                if not self._step():
-                    return
-            lag = target - self.sim.time
-            self._behind = lag > max(2.0 * dt, self.rtf * 2.0 / self.publish_rate)
-            if lag > self.rtf * 1.0:       # more than a second of wall time behind: stop accumulating debt
-                self._anchor()
-        else:
-            self._behind = False
-            while True:
-                if not self._step():
-                    return
-                if time.monotonic() - wall_start >= budget:
-                    break
-        now = time.monotonic()
-        self._rtf_window.append((now, self.sim_time))
-        while self._rtf_window[0][0] <= now - 2.0:     # entries are in wall-time order: the old ones are first
-            self._rtf_window.popleft()
+        # fixed steps, or (time.rtol > 0) the error-controlled steps the simulation picks: never truncated to a
+        # tick, so a recording's re-simulation takes exactly the same steps
+        self.pacer.advance(lambda: self.sim.time, self._step, STEP_BUDGET / self.publish_rate,
+                           None if self.sim.adaptive else self.sim.dt, 1.0 / self.publish_rate,
+                           log_time=lambda: self.sim_time)
 
     def _step(self) -> bool:
         try:
@@ -411,32 +439,31 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------ publishing
     def _publish_state(self, force_markers: bool = False) -> None:
-        sim, ob = self.sim, self.sim.observer
+        sim = self.sim
         t = self.sim_time
-        snap = sim.snapshot()
-        pos_w = snap.position
-        R_w = world.head_rotation_world(ob.head_orientation(sim.state))
-        v_w, w_w, torque = snap.velocity, snap.angular_velocity, snap.motor_torque
-        values = np.concatenate([pos_w, R_w.ravel(), v_w, w_w, [ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t,
-                                                               ob.speed, torque]])
-        if not np.all(np.isfinite(values)):     # the physics never returns NaN; refuse to pass one on anyway
+        snap = sim.snapshot()          # the one observation: the same function makes re-simulation's
+        if not snap.is_finite():       # the physics never returns NaN; refuse to pass one on anyway
             self.withheld += 1
             self.last_error = "non-finite state withheld from publication"
             return
+        R_w = snap.rotation()
         self.pub_clock.publish(convert.clock_msg(t))
-        pose = convert.pose_msg(t, self.frame_id, pos_w, R_w)
+        pose = convert.pose_msg(t, self.frame_id, snap.position, R_w)
         self.pub_pose.publish(pose)
         # odometry carries the same pose: the orientation quaternion is computed once per tick
-        self.pub_odom.publish(convert.odometry_msg(t, self.frame_id, self.child_frame_id, pose.pose, R_w, v_w, w_w))
-        self.pub_joints.publish(convert.joint_state_msg(t, ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t,
-                                                        sim.motor_angle, sim.omega_T, torque))
-        self.pub_omega_h.publish(convert.float_msg(ob.rate_h))
-        self.pub_omega_t.publish(convert.float_msg(ob.rate_t))
-        self.pub_speed.publish(convert.float_msg(ob.speed))
+        self.pub_odom.publish(convert.odometry_msg(t, self.frame_id, self.child_frame_id, pose.pose, R_w,
+                                                   snap.velocity, snap.angular_velocity))
+        self.pub_joints.publish(convert.joint_state_msg(t, snap.phi_h, snap.phi_t, snap.omega_h, snap.omega_t,
+                                                        snap.drive_angle, snap.omega_T, snap.motor_torque))
+        self.pub_omega_h.publish(convert.float_msg(snap.omega_h))
+        self.pub_omega_t.publish(convert.float_msg(snap.omega_t))
+        self.pub_speed.publish(convert.float_msg(snap.v))
         now = time.monotonic()
         if self.marker_rate > 0 and (force_markers or now - self._last_marker >= 1.0 / self.marker_rate):
             self._last_marker = now
             self.pub_markers.publish(self._markers(t))
+        if self.view is not None:
+            self.view.update(sim, snapshot=snap)
 
     def _markers(self, t: float) -> MarkerArray:
         sim = self.sim
@@ -463,14 +490,12 @@ class SimNode(Node):
 
     def _publish_diagnostics(self) -> None:
         sim, st = self.sim, self.sim.last_stats
-        achieved = float("nan")
-        if len(self._rtf_window) >= 2 and self._rtf_window[-1][0] > self._rtf_window[0][0]:
-            (w0, s0), (w1, s1) = self._rtf_window[0], self._rtf_window[-1]
-            achieved = (s1 - s0) / (w1 - w0)
+        achieved = self.pacer.achieved()
+        achieved = float("nan") if achieved is None else achieved
         level, message = "OK", "running"
         if self.paused:
             message = "paused"
-        if self._behind:
+        if self.pacer.behind:
             level, message = "WARN", (f"cannot keep up: real-time factor {achieved:.2f} achieved, "
                                       f"{self.rtf:g} requested")
         # a failed recording stays an ERROR until the recording is stopped or restarted
@@ -491,6 +516,10 @@ class SimNode(Node):
             "n_flagella": sim.scene.robot.n_flagella,
             "recording": self.recorder.path if self.recorder is not None else "",
             "recording_error": recording_error(self.recorder),
+            # the steady-state rule of flagbot run and the sweeps (SteadyDetector), on this run
+            "steady": sim.steady, "steady_change": f"{sim.steady_detector.change:.3g}",
+            "integrator": sim.stepper.integrator.name, "error_control_rtol": sim.stepper.rtol,
+            "live_view": self.view.url if self.view is not None else "",
         }
         self.pub_diag.publish(convert.diagnostics_msg(self.sim_time, "flagbot_sim: simulator", level, message,
                                                       values))

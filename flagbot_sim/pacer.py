@@ -1,0 +1,91 @@
+"""Real-time pacing of a simulation, without ROS: how far to step at each tick of a wall-clock timer.
+
+The live device (sim_node) steps its simulation in a timer. At every tick the pacer computes the simulated time
+the run should have reached at the requested real-time factor (``rtf``; 0 = as fast as possible), steps towards
+it for at most a budget of wall time (the rest of the tick serves commands and services), and keeps score:
+
+* the achieved real-time factor over the last ``window`` seconds of wall time;
+* whether the run falls behind (more than two steps, or two ticks' worth of simulated time);
+* catch-up debt: more than a second of wall time behind, the schedule is re-anchored at the present instead of
+  racing to make up time that a command sent now would not care about.
+
+It works with fixed steps (``dt``: a step is taken while at least half of it fits before the target) and with
+error-controlled ones (``dt`` None: steps of the size the simulation picks, while the target is ahead); either
+way simulated time only grows, so /clock is monotone.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from typing import Callable
+
+
+class Pacer:
+    def __init__(self, rtf: float, sim_time: float, clock: Callable[[], float] = time.monotonic,
+                 window: float = 2.0):
+        self.clock = clock
+        self.window = float(window)
+        self.rtf = float(rtf)
+        self.behind = False
+        self._samples: deque[tuple[float, float]] = deque()      # (wall, simulated time), last window
+        self.anchor(sim_time)
+
+    def anchor(self, sim_time: float, wall: float | None = None) -> None:
+        """Start the schedule afresh: simulated time ``sim_time`` now (after a reset, a pause, an rtf change)."""
+        self._wall0 = self.clock() if wall is None else wall
+        self._sim0 = float(sim_time)
+
+    def set_rtf(self, rtf: float, sim_time: float) -> None:
+        self.rtf = float(rtf)
+        self.anchor(sim_time)
+
+    def target(self, wall: float) -> float:
+        """Simulated time the run should have reached at wall time ``wall``."""
+        return self._sim0 + self.rtf * (wall - self._wall0)
+
+    def advance(self, sim_time: Callable[[], float], step: Callable[[], bool], budget: float,
+                dt: float | None, tick_period: float, log_time: Callable[[], float] | None = None) -> bool:
+        """Step (``step()`` returns False when a step failed) towards the target for at most ``budget`` seconds
+        of wall time. ``sim_time()`` is the simulation's time, ``dt`` its fixed step (None: error-controlled),
+        ``log_time()`` the monotone time the achieved rate is measured on (default sim_time). Returns False if a
+        step failed."""
+        start = self.clock()
+        ok = True
+        if self.rtf > 0:
+            target = self.target(start)
+            while self._more(sim_time(), target, dt) and self.clock() - start < budget:
+                if not step():
+                    ok = False
+                    break
+            lag = target - sim_time()
+            self.behind = lag > max(2.0 * (dt or 0.0), self.rtf * 2.0 * tick_period)
+            if lag > self.rtf * 1.0:       # more than a second of wall time behind: stop accumulating debt
+                self.anchor(sim_time())
+        else:
+            self.behind = False
+            while True:
+                if not step():
+                    ok = False
+                    break
+                if self.clock() - start >= budget:
+                    break
+        now = self.clock()
+        self._samples.append((now, (log_time or sim_time)()))
+        while self._samples[0][0] <= now - self.window:      # in wall-time order: the old ones are first
+            self._samples.popleft()
+        return ok
+
+    @staticmethod
+    def _more(t: float, target: float, dt: float | None) -> bool:
+        return t + 0.5 * dt <= target if dt is not None else t < target
+
+    def achieved(self) -> float | None:
+        """Real-time factor achieved over the last window of wall time (None before two samples)."""
+        if len(self._samples) < 2 or self._samples[-1][0] <= self._samples[0][0]:
+            return None
+        (w0, s0), (w1, s1) = self._samples[0], self._samples[-1]
+        return (s1 - s0) / (w1 - w0)
+
+    def restart_window(self) -> None:
+        """Forget the achieved-rate samples (the simulated time jumped: a rebuilt or reset simulation)."""
+        self._samples.clear()

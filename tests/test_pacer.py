@@ -1,0 +1,82 @@
+"""Real-time pacing (flagbot_sim.pacer), without ROS: a virtual wall clock, and a simulation whose steps take
+virtual wall time."""
+import math
+
+import pytest
+
+from flagbot_sim.pacer import Pacer
+
+
+class World:
+    """A virtual wall clock and a 'simulation' of fixed steps dt that cost ``cost`` seconds of wall time each."""
+
+    def __init__(self, dt=0.01, cost=0.0):
+        self.wall = 0.0
+        self.t = 0.0
+        self.dt = dt
+        self.cost = cost
+        self.steps = 0
+
+    def clock(self):
+        return self.wall
+
+    def step(self):
+        self.t += self.dt
+        self.wall += self.cost
+        self.steps += 1
+        return True
+
+    def run(self, pacer, ticks, period=0.02, budget=0.016, dt=None):
+        for _ in range(ticks):
+            pacer.advance(lambda: self.t, self.step, budget, self.dt if dt is None else dt, period)
+            self.wall = (math.floor(self.wall / period + 1e-9) + 1) * period      # the next tick
+
+
+def test_simulated_time_follows_the_requested_real_time_factor():
+    for rtf in (0.5, 1.0, 4.0):
+        w = World()
+        p = Pacer(rtf, 0.0, clock=w.clock)
+        w.run(p, 500)                         # 10 s of wall time
+        assert w.t == pytest.approx(rtf * w.wall, abs=w.dt + rtf * 0.02)
+        assert p.achieved() == pytest.approx(rtf, rel=0.05) and not p.behind
+
+
+def test_a_slow_simulation_is_behind_spends_only_its_budget_and_owes_no_debt():
+    # each step costs 4 ms of wall time and moves 10 ms: 4 steps fit the 16 ms budget of a 20 ms tick
+    w = World(cost=0.004)
+    p = Pacer(10.0, 0.0, clock=w.clock)
+    w.run(p, 200)
+    assert p.behind
+    assert p.achieved() == pytest.approx(0.04 / 0.02, rel=0.05)     # 4 steps of 10 ms per 20 ms tick
+    # re-anchored whenever more than a second of wall time behind: the target never runs away
+    assert p.target(w.wall) - w.t <= 10.0 * 1.0 + 0.1
+
+
+def test_as_fast_as_possible_fills_the_budget():
+    w = World(cost=0.001)
+    p = Pacer(0.0, 0.0, clock=w.clock)
+    w.run(p, 10, budget=0.016)
+    assert w.steps == 10 * 16 and not p.behind
+
+
+def test_error_controlled_steps_go_to_the_target_without_overstepping_it_by_more_than_one():
+    """dt None: steps of the simulation's own size while the target is ahead (never cut to the tick)."""
+    w = World(dt=0.007)
+    p = Pacer(1.0, 0.0, clock=w.clock)
+    ts = []
+    for _ in range(100):
+        p.advance(lambda: w.t, w.step, 0.016, None, 0.02)
+        ts.append(w.t)
+        assert w.t >= p.target(w.wall) and w.t - p.target(w.wall) < w.dt
+        w.wall += 0.02
+    assert ts == sorted(ts)                  # /clock monotone
+
+
+def test_anchor_restarts_the_schedule_and_rate_changes_take_effect_at_once():
+    w = World()
+    p = Pacer(1.0, 0.0, clock=w.clock)
+    w.run(p, 50)
+    t_before = w.t
+    p.set_rtf(3.0, w.t)                      # from now on, 3x: no catching up on the past at the new rate
+    w.run(p, 50)
+    assert w.t - t_before == pytest.approx(3.0 * 1.0, abs=0.1)

@@ -1,0 +1,50 @@
+"""sim_node serves the live view to a Foxglove client when asked (foxglove_port), on loopback, and refuses a port
+it cannot serve without changing anything."""
+import asyncio
+import socket
+
+import numpy as np
+import pytest
+
+from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, set_params, spin_until
+
+pytest.importorskip("foxglove")
+pytest.importorskip("websockets")
+from foxglove_client import Client  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_sim_node_serves_the_robot_to_a_foxglove_client(ros):
+    port = free_port()
+    proc = NodeProcess("flagbot_sim.ros.sim_node", "--ros-args", "-p", "scene:=design2", "-p", "n_flagella:=3",
+                       "-p", "initial_omega:=5.0", "-p", f"foxglove_port:={port}")
+    try:
+        spin_until(ros, lambda: "sim_node" in ros.get_node_names(), DISCOVERY_TIMEOUT, "sim_node")
+
+        async def watch():
+            c = await Client.connect(f"ws://127.0.0.1:{port}", timeout=20)
+            await c.subscribe({"/flagbot/state", "/flagbot/scene"})
+            got = await c.collect({"/flagbot/state", "/flagbot/scene"}, timeout=20)
+            await c.close()
+            return got
+        got = asyncio.run(watch())
+        state = got["/flagbot/state"][-1][1]
+        assert state["omega_T"] == pytest.approx(5.0) and np.isfinite(state["v"])
+        scene = got["/flagbot/scene"][-1][1]
+        strips = [e for ent in scene["entities"] for e in ent.get("lines", [])]
+        assert len(strips) >= 3          # one per flagellum
+        # a port in use cannot be served: refused with the reason, the view goes on where it was
+        busy = socket.socket()
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        (res,) = set_params(ros, "sim_node", foxglove_port=busy.getsockname()[1])
+        busy.close()
+        assert not res.successful and "in use" in res.reason, res.reason
+    finally:
+        code, out = proc.stop()
+    assert code == 0, out
