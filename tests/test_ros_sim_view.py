@@ -5,6 +5,7 @@ import socket
 
 import numpy as np
 import pytest
+from rosgraph_msgs.msg import Clock
 
 from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, set_params, spin_until
 
@@ -23,8 +24,11 @@ def test_sim_node_serves_the_robot_to_a_foxglove_client(ros):
     port = free_port()
     proc = NodeProcess("flagbot_sim.ros.sim_node", "--ros-args", "-p", "scene:=design2", "-p", "n_flagella:=3",
                        "-p", "initial_omega:=5.0", "-p", f"foxglove_port:={port}")
+    clock = []
+    sub = ros.create_subscription(Clock, "/clock", clock.append, 10)
     try:
-        spin_until(ros, lambda: "sim_node" in ros.get_node_names(), DISCOVERY_TIMEOUT, "sim_node")
+        # the node is serving once it publishes (its view opens before its timer starts)
+        spin_until(ros, lambda: clock, DISCOVERY_TIMEOUT, "/clock from sim_node")
 
         async def watch():
             c = await Client.connect(f"ws://127.0.0.1:{port}", timeout=20)
@@ -46,5 +50,6 @@ def test_sim_node_serves_the_robot_to_a_foxglove_client(ros):
         busy.close()
         assert not res.successful and "in use" in res.reason, res.reason
     finally:
+        ros.destroy_subscription(sub)
         code, out = proc.stop()
     assert code == 0, out
