@@ -200,8 +200,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scene's)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    from .view.args import add_view_arguments
-    add_view_arguments(p)
+    if command is not None:             # flagbot --help lists the commands only: it imports nothing of them
+        from .view.args import add_view_arguments
+        add_view_arguments(p)
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("scenes", help="list built-in scenes and the scene keys with units and ranges")
     p.set_defaults(func=cmd_scenes)

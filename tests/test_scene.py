@@ -67,15 +67,19 @@ def test_bad_values_are_refused_with_the_key_and_what_is_allowed(override, words
         assert w in str(exc.value)
 
 
-def test_the_clamp_turns_at_most_a_quarter_turn_per_step():
-    # at half a turn per step the clamped arm's tangent reverses (the frame transport divides by zero); at a
-    # whole turn the imposed motion aliases to none
-    assert load_scene("clamped_flagellum", ["motor.omega_rpm=-1500"]).omega_T < 0
-    for rpm, dt in ((3000, 0.01), (6000, 0.01), (-1600, 0.01), (100, 2.0)):
-        with pytest.raises(SceneError, match="motor.omega_rpm") as exc:
-            load_scene("clamped_flagellum", [f"motor.omega_rpm={rpm}", f"time.dt={dt}"])
-        assert "deg per step of time.dt" in str(exc.value)
-    assert load_scene("clamped_flagellum", ["motor.omega_rpm=3000", "time.dt=0.004"]).time.dt == 0.004
+def test_a_fast_clamp_is_split_into_steps_of_at_most_max_turn():
+    """At half a turn per step the clamped arm's tangent would reverse (its frame transport divides by zero), at a
+    whole turn the imposed motion would alias to none: so every step is split until it turns at most
+    time.max_turn (a quarter turn at most), whatever omega and dt."""
+    from flagbot_sim.physics import Simulation
+    for rpm, dt in ((3000, 0.01), (-6000, 0.01), (100, 2.0)):
+        sim = Simulation(load_scene("clamped_flagellum", [f"motor.omega_rpm={rpm}", f"time.dt={dt}"]))
+        st = sim.step()
+        turns = [abs(sim.omega_T) * h for h in st.substep_dts]
+        assert max(turns) <= sim.scene.time.max_turn + 1e-12 and sum(st.substep_dts) == pytest.approx(dt)
+        assert sim.state.drive_angle == pytest.approx(sim.omega_T * dt)
+    with pytest.raises(SceneError, match="time.max_turn"):
+        load_scene("clamped_flagellum", ["time.max_turn=2.0"])
 
 
 def test_clamp_cannot_be_combined_with_head_effects_or_several_flagella():

@@ -21,6 +21,8 @@ def speed_arguments(ap) -> None:
     ap.add_argument("--no-scaling", action="store_true", help="skip the cost-vs-DOF study")
     ap.add_argument("--no-pyelastica", action="store_true", help="skip the PyElastica comparison")
     ap.add_argument("--no-presets", action="store_true", help="skip the real-time factor of each accuracy preset")
+    ap.add_argument("--no-steady", action="store_true",
+                    help="skip the direct steady solver against time-stepping to the same steady state")
     ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
 
 

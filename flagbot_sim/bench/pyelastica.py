@@ -155,6 +155,30 @@ def run_der(rpm: float, edge: float, dt: float, ref: Reference, tol: float, conf
     return tr.finish(res)
 
 
+def run_steady(rpm: float, edge: float, ref: Reference, tol: float) -> RunResult:
+    """The same clamped flagellum's steady state solved directly (flagbot_sim.physics.steady): no time stepping,
+    so "time to steady" is the solve's wall time."""
+    from ..physics.model import RobotModel
+    from ..physics.steady import SteadySolver, summary
+
+    sc = scene_for(rpm, edge)
+    w0 = time.perf_counter()
+    model = RobotModel(sc)
+    sol = SteadySolver(model).solve(sc.omega_T)
+    wall = time.perf_counter() - w0
+    out = summary(model, sol)
+    res = RunResult("DER steady solver (flagbot_sim)", f"edge {edge * 1e3:.3g} mm, relative equilibrium", 0.0,
+                    len(model.net.flagella_edges[0]))
+    res.err_z = abs(out["tip"][2] / ref.z - 1.0)
+    res.err_Tx = abs(out["Tx"] / ref.Tx - 1.0)
+    res.err_Fx = abs(out["Fx"] / ref.Fx - 1.0)
+    res.reached = res.err_z < tol and res.err_Tx < tol
+    res.t_steady, res.wall_steady, res.wall_run, res.steps = float("nan"), wall, wall, sol.iterations
+    if not res.reached:
+        res.note = f"the discretisation's own error exceeds {100 * tol:g}%"
+    return res
+
+
 def warm_der() -> None:
     from ..physics import Simulation
     sim = Simulation(scene_for(10.0))
@@ -426,6 +450,10 @@ def compare(rpm=10.0, tol=0.01, confirm=5.0, max_time=40.0, sample=0.1, der_sett
         rows.append(r)
         log(f"  DER {r.settings}: " + (f"within {100 * tol:g}% from t = {r.t_steady:.2f} s, wall "
                                        f"{r.wall_steady:.3f} s" if r.reached else r.note))
+    r = run_steady(rpm, 4.11e-3, ref, tol)
+    rows.append(r)
+    log(f"  DER steady solver {r.settings}: {1e3 * r.wall_steady:.1f} ms, errors |z| {100 * r.err_z:.2f}%, "
+        f"Tx {100 * r.err_Tx:.2f}%")
     probes = {}
     if run_elastica_part and not available("bench"):
         log(f"{MissingExtra('bench', 'the PyElastica comparison')}; its half is skipped")
@@ -454,9 +482,12 @@ def compare(rpm=10.0, tol=0.01, confirm=5.0, max_time=40.0, sample=0.1, der_sett
             log(f"  PyElastica {r.settings}: " + (f"within {100 * tol:g}% from t = {r.t_steady:.2f} s, wall "
                                                   f"{r.wall_steady:.3f} s" if r.reached else r.note))
     b_der, b_el = best(rows, "DER (flagbot_sim)"), best(rows, "PyElastica")
+    b_st = best(rows, "DER steady solver (flagbot_sim)")
     ratio = b_el.wall_steady / b_der.wall_steady if (b_der and b_el) else float("nan")
+    ratio_st = b_el.wall_steady / b_st.wall_steady if (b_st and b_el) else float("nan")
     return {"rpm": rpm, "tol": tol, "confirm": confirm, "reference": asdict(ref), "rows": rows,
-            "best_der": b_der, "best_elastica": b_el, "speed_ratio": ratio, "probes": probes}
+            "best_der": b_der, "best_elastica": b_el, "best_steady": b_st, "speed_ratio": ratio,
+            "speed_ratio_steady": ratio_st, "probes": probes}
 
 
 def run_comparison(quick: bool = False) -> int:
@@ -517,9 +548,13 @@ def main(argv=None) -> int:
         print(f"best PyElastica: {be.settings}: {be.wall_steady:.3f} s wall")
     if bd and be:
         print(f"speed ratio (PyElastica wall / DER wall at {100 * a.tol:g}%): {out['speed_ratio']:.1f}x")
+    bs = out["best_steady"]
+    if bs:
+        print(f"DER steady solver: {1e3 * bs.wall_steady:.1f} ms" + (
+            f" ({out['speed_ratio_steady']:.0f}x faster than PyElastica's time stepping)" if be else ""))
     print(f"(script total {time.perf_counter() - w0:.1f} s)")
     if a.json:
-        payload = {k: v for k, v in out.items() if k not in ("rows", "best_der", "best_elastica")}
+        payload = {k: v for k, v in out.items() if k not in ("rows", "best_der", "best_elastica", "best_steady")}
         payload["rows"] = [dict(asdict(r), us_per_step=r.us_per_step) for r in out["rows"]]
         Path(a.json).write_text(json.dumps(payload, indent=2, default=str))
     return 0

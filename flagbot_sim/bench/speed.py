@@ -167,6 +167,10 @@ def run(args) -> int:
         rows, fs, fn = scaling(edges_per_flagellum=(5, 20, 80, 330) if args.quick else
                                (5, 10, 20, 40, 80, 160, 330))
         print(format_scaling(rows, fs, fn), flush=True)
+    if not args.no_steady:
+        rows = steady_vs_time(1 if args.quick else repeat,
+                              cases=STEADY_CASES[:3] if args.quick else STEADY_CASES)
+        print(format_steady(rows), flush=True)
     if not args.no_presets:
         print(preset_table(1 if args.quick else repeat, args.warmup, args.measure), flush=True)
     if not args.no_pyelastica:
@@ -182,3 +186,64 @@ def main(argv=None) -> int:
     from . import speed_arguments
     speed_arguments(ap)
     return run(ap.parse_args(argv))
+
+
+# ---------------------------------------------------------------------------------------------- steady vs stepping
+STEADY_CASES = [("clamped_flagellum", ["motor.omega_rpm=10"]), ("clamped_flagellum", ["motor.omega_rpm=100"]),
+                ("design1", []), ("design1", ["robot.n_flagella=3"]), ("design2", []),
+                ("design2", ["robot.n_flagella=3"])]
+
+
+def _outputs(scene, summary: dict) -> np.ndarray:
+    keys = ("Fx", "Tx") if scene.clamped else ("omega_h", "v")
+    return np.array([summary[k] for k in keys])
+
+
+def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) -> list[dict]:
+    """For each case: the direct steady solve (median wall of ``repeat``), and time-stepping to the steady-state
+    rule from rest at the paper's numerics (implicit Euler, dt = 1e-2) and at matched accuracy (BDF2,
+    dt = 1e-3: the time error (omega dt)^2/3 ~ 4e-5), each with its largest relative difference from the
+    equilibrium in its outputs (omega_h, v; or Fx, Tx)."""
+    from ..physics.model import RobotModel
+    from ..physics.steady import SteadySolver, summary
+    rows = []
+    for scene_name, extra in cases:
+        sc = load_scene(scene_name, ["observe.steady_rtol=1e-4", *extra])
+        walls = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            m = RobotModel(sc)
+            sol = SteadySolver(m).solve(sc.omega_T)
+            walls.append(time.perf_counter() - t0)
+        ref = _outputs(sc, summary(m, sol))
+        row = {"case": f"{scene_name} {' '.join(extra)}".strip(), "steady_s": statistics.median(walls),
+               "iterations": sol.iterations}
+        for tag, over in (("paper", []), ("matched", ["time.integrator='bdf2'", "time.dt=1e-3"])):
+            s2 = load_scene(scene_name, ["observe.steady_rtol=1e-4", *extra, *over])
+            sim = Simulation(s2)
+            t0 = time.perf_counter()
+            steady = sim.run_until_steady(t_max)
+            wall = time.perf_counter() - t0
+            out = _outputs(s2, sim.summary())
+            row[f"{tag}_s"] = wall
+            row[f"{tag}_steady"] = steady
+            row[f"{tag}_error"] = float(np.max(np.abs(out / ref - 1.0)))
+            row[f"{tag}_sim_time"] = sim.time
+        rows.append(row)
+        print(f"  steady vs time-stepping: {row['case']}", flush=True)
+    return rows
+
+
+def format_steady(rows: list[dict]) -> str:
+    lines = ["steady state: solved directly vs time-stepped from rest to the steady-state rule (rtol 1e-4); "
+             "error = largest relative difference from the equilibrium (omega_h, v; clamped: Fx, Tx)",
+             f"{'case':38s} {'steady solve':>12s} {'implicit Euler dt=1e-2':>30s} {'BDF2 dt=1e-3':>30s}",
+             f"{'':38s} {'ms':>12s} {'s wall (error)  ratio':>30s} {'s wall (error)  ratio':>30s}"]
+    for r in rows:
+        cells = []
+        for tag in ("paper", "matched"):
+            flag = "" if r[f"{tag}_steady"] else " CAP"
+            cells.append(f"{r[f'{tag}_s']:8.2f} ({100 * r[f'{tag}_error']:6.3f}%) {r[f'{tag}_s'] / r['steady_s']:6.0f}x"
+                         f"{flag}")
+        lines.append(f"{r['case']:38s} {1e3 * r['steady_s']:12.1f} {cells[0]:>30s} {cells[1]:>30s}")
+    return "\n".join(lines)

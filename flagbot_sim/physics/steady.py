@@ -101,6 +101,8 @@ class SteadySolver:
             self.gauge = np.zeros(0, np.int64)
         e = net.edges
         self._tail, self._head = e[:, 0], e[:, 1]
+        self._is_fixed = np.zeros(model.ndof, bool)
+        self._is_fixed[self.fixed] = True
 
     # ---------------------------------------------------------------- the rigid-motion velocity field
     def _rates(self, omega_T: float, omega_t: float):
@@ -184,25 +186,33 @@ class SteadySolver:
         ctx.dv_dq, ctx.da_dq = 0.0, 1.0
         Ka = model.pattern.matrix(model.jacobian(ctx) - J00)          # dR/da
         Dv, Da = self._velocity_jacobians(q, fr, omega_T, omega_t)
-        if not inertia:
-            Ka = Ka * 0.0
-        J = (model.pattern.matrix(J00) + Kv @ Dv + Ka @ Da).tolil()
+        J = model.pattern.matrix(J00) + Kv @ Dv
+        if inertia:
+            J = J + Ka @ Da
+        J = J.tocoo()
+        rows, cols, vals = J.row, J.col, J.data
         fixed = self.fixed
-        if len(fixed):
-            J[fixed, :] = 0.0
-            J[fixed, fixed] = 1.0
+        ndof = model.ndof
+        if len(fixed):                 # prescribed DOFs: identity rows
+            keep = ~self._is_fixed[rows]
+            rows, cols, vals = rows[keep], cols[keep], vals[keep]
+            rows = np.concatenate([rows, fixed])
+            cols = np.concatenate([cols, fixed])
+            vals = np.concatenate([vals, np.ones(len(fixed))])
             r[fixed] = 0.0
-        J = J.tocsc()
         if self.clamped:
-            return r, J, fr
-        col_w = Kv @ dv_dw + Ka @ da_dw
+            return r, sp.csc_matrix((vals, (rows, cols)), shape=(ndof, ndof)), fr
+        col_w = Kv @ dv_dw + (Ka @ da_dw if inertia else 0.0)
         col_U = Kv @ dv_dU
         col_w[fixed] = 0.0
         col_U[fixed] = 0.0
-        G = sp.csc_matrix((np.ones(len(self.gauge)), (np.arange(len(self.gauge)), self.gauge)),
-                          shape=(len(self.gauge), model.ndof))
-        A = sp.bmat([[J, sp.csc_matrix(np.column_stack([col_w, col_U]))], [G, None]], format="csc")
-        return r, A, fr
+        nw = np.nonzero(col_w)[0]
+        nU = np.nonzero(col_U)[0]
+        ng = len(self.gauge)
+        rows = np.concatenate([rows, nw, nU, ndof + np.arange(ng)])
+        cols = np.concatenate([cols, np.full(len(nw), ndof), np.full(len(nU), ndof + 1), self.gauge])
+        vals = np.concatenate([vals, col_w[nw], col_U[nU], np.ones(ng)])
+        return r, sp.csc_matrix((vals, (rows, cols)), shape=(ndof + 2, ndof + 2)), fr
 
     # ---------------------------------------------------------------- Newton
     def _norm(self, r: np.ndarray) -> float:
@@ -233,6 +243,7 @@ class SteadySolver:
         r, fr, _ = self.residual(q, committed, omega_T, omega_t, U)
         rn = self._norm(r)
         lam = 1.0
+        lu, dz_next = None, None      # a factorisation whose last simplified correction contracted fast
         for it in range(self.max_iterations + 1):
             g = q[self.gauge] - q_gauge
             rn = self._norm(r)
@@ -242,13 +253,18 @@ class SteadySolver:
                 return q, omega_t, U, rn, it, fr
             if it == self.max_iterations:
                 break
-            _, A, _ = self.system(q, committed, omega_T, omega_t, U)
-            try:
-                lu = spla.splu(A, permc_spec="COLAMD")
-            except RuntimeError as exc:
-                raise SteadyFailed(f"singular Jacobian at omega_T = {omega_T:.6g} rad/s: {exc}") from None
-            rhs = r if self.clamped else np.concatenate([r, g])
-            dz = -lu.solve(rhs)
+            if dz_next is not None:
+                # the simplified correction the monotonicity test just computed, with the same factorisation: it
+                # contracted at least 50x, so a fresh Jacobian would buy little (simplified Newton)
+                dz, dz_next = dz_next, None
+            else:
+                _, A, _ = self.system(q, committed, omega_T, omega_t, U)
+                try:
+                    lu = spla.splu(A, permc_spec="COLAMD")
+                except RuntimeError as exc:
+                    raise SteadyFailed(f"singular Jacobian at omega_T = {omega_T:.6g} rad/s: {exc}") from None
+                rhs = r if self.clamped else np.concatenate([r, g])
+                dz = -lu.solve(rhs)
             if not np.all(np.isfinite(dz)):
                 raise SteadyFailed(f"non-finite Newton step at omega_T = {omega_T:.6g} rad/s")
             dn = self._step_norm(dz, omega_T)
@@ -261,8 +277,11 @@ class SteadySolver:
                 ok = np.all(np.isfinite(r_try))
                 if ok:
                     rhs_try = r_try if self.clamped else np.concatenate([r_try, q_try[self.gauge] - q_gauge])
-                    dn_try = self._step_norm(lu.solve(rhs_try), omega_T)
+                    bar = lu.solve(rhs_try)
+                    dn_try = self._step_norm(bar, omega_T)
                     if dn_try <= (1.0 - 0.5 * lam) * dn or dn <= 1e-14:
+                        if lam == 1.0 and dn_try <= 0.02 * dn:
+                            dz_next = -bar
                         break
                 lam *= 0.5
                 if lam < 1.0 / 1024.0:

@@ -10,6 +10,11 @@
 
 Nothing here imports ROS; only :mod:`.scene_msgs` and :mod:`.live` need foxglove-sdk, and only when used.
 """
-from .geometry import RobotGeometry
-
 __all__ = ["RobotGeometry"]
+
+
+def __getattr__(name):        # lazily: the --view options (view.args) must not import the geometry
+    if name == "RobotGeometry":
+        from .geometry import RobotGeometry
+        return RobotGeometry
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
