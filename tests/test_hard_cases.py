@@ -21,7 +21,7 @@ def drive(scene, overrides, duration, schedule=None, dt=None):
     sim = Simulation(load_scene(scene, list(overrides) + ([f"time.dt={dt}"] if dt else [])))
     el, tol = sim.model.elastic, sim.stepper.tol
     # the test keeps its own time series (the simulator's observer keeps only the last few windows)
-    rec = {"max_stretch": 0.0, "reductions": 0, "steps": 0, "t": [0.0], "phi_h": [0.0]}
+    rec = {"max_stretch": 0.0, "reductions": 0, "steps": 0, "substeps": 0, "t": [0.0], "phi_h": [0.0]}
     for _ in range(int(round(duration / sim.dt))):
         if schedule is not None:
             sim.set_omega(schedule(sim.time))
@@ -32,6 +32,7 @@ def drive(scene, overrides, duration, schedule=None, dt=None):
         rec["max_stretch"] = max(rec["max_stretch"], stretch)
         rec["reductions"] += st.reductions
         rec["steps"] += 1
+        rec["substeps"] += st.substeps
         rec["t"].append(sim.time)
         rec["phi_h"].append(sim.observer.phi_h)
     assert rec["max_stretch"] < 0.01
@@ -97,12 +98,12 @@ def test_long_soft_flagellum_wrapping_around_the_axis():
 
 
 def test_ten_times_the_papers_time_step():
-    """dt = 0.1 s against dt = 0.01 s [1.1e-3 / 1.6e-2 / 6.7e-3]"""
-    # max_turn = 3 rad: take the 0.1 s steps as they are (the motor turns 1.6 rad per step), no sub-steps
-    (a, ra), (b, _) = [drive("design1", ["motor.omega_rpm=150", "time.max_turn=3.0"], 30.0, dt=dt)
+    """dt = 0.1 s against dt = 0.01 s [1.1e-3 / 1.7e-2 / 7.5e-3]"""
+    # max_turn = pi/2: take the 0.1 s steps as they are (the motor turns 1.47 rad per step), no sub-steps
+    (a, ra), (b, _) = [drive("design1", ["motor.omega_rpm=140", f"time.max_turn={math.pi / 2}"], 30.0, dt=dt)
                        for dt in (1e-1, 1e-2)]
     compare(steady(a), steady(b), 5e-2, 3e-2)
-    assert ra["reductions"] < 0.05 * ra["steps"]      # [2 halvings in 300 steps]
+    assert ra["reductions"] < 0.05 * ra["steps"] and ra["substeps"] - ra["reductions"] == ra["steps"]      # [2 halvings in 300 steps]
 
 
 def test_very_fine_edges():

@@ -205,12 +205,32 @@ class Recorder:
         """topic -> type of every topic subscribed so far."""
         return self.writer.topics
 
+    def _drain(self, settle: float = 0.05) -> None:
+        """Write what the middleware still holds for our subscriptions (the node's last ticks before a stop, which
+        the executor no longer takes), waiting ``settle`` s once for messages still in flight."""
+        for attempt in range(2):
+            for topic, sub in self._subs.items():
+                if sub is None:
+                    continue
+                try:
+                    while True:
+                        with sub.handle:
+                            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                        if taken is None:
+                            break
+                        self._on_message(topic, taken[0], taken[1])
+                except Exception:           # rclpy already shut down, or the subscription destroyed: nothing held
+                    continue
+            if attempt == 0:
+                time.sleep(settle)
+
     def close(self) -> WriteSummary:
         """Stop recording and close the file with its summary and index. Safe after rclpy shut down."""
         if not self._closed:
             self._closed = True
             self._stop.set()
             self._flusher.join(timeout=2.0)
+            self._drain()
             for sub in self._subs.values():
                 if sub is not None:
                     try:
