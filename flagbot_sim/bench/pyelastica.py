@@ -412,9 +412,12 @@ def table(rows: list[RunResult]) -> str:
             "err |z| | err Tx | err Fx |")
     lines = [head, "|" + "---|" * 9]
     for r in rows:
-        ts = f"{r.t_steady:.2f}" if r.reached else "not reached"
+        direct = r.reached and math.isnan(r.t_steady)          # the steady solver: no time stepped at all
+        ts = "none (solved directly)" if direct else f"{r.t_steady:.2f}" if r.reached else "not reached"
         ws = f"{r.wall_steady:.3f}" if r.reached else f"> {r.wall_run:.2f}"
-        lines.append(f"| {r.code} | {r.settings} | {ts} | {ws} | {r.steps} | {r.us_per_step:.1f} | "
+        steps = f"{r.steps} Newton iterations" if direct else str(r.steps)
+        per = "-" if direct else f"{r.us_per_step:.1f}"
+        lines.append(f"| {r.code} | {r.settings} | {ts} | {ws} | {steps} | {per} | "
                      f"{100 * r.err_z:.2f}% | {100 * r.err_Tx:.2f}% | {100 * r.err_Fx:.2f}% |")
     return "\n".join(lines)
 
