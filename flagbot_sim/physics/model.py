@@ -132,12 +132,14 @@ class RobotModel:
         self.elastic.accumulate(ctx.q, ctx.frames, r, None, self.twist_hinge, ctx.drive_angle)
         return r
 
-    def jacobian(self, ctx: StepContext) -> np.ndarray:
-        """CSC data of the Jacobian (on ``self.pattern``) at the context's trial configuration."""
+    def jacobian(self, ctx: StepContext, springs: bool = True) -> np.ndarray:
+        """CSC data of the Jacobian (on ``self.pattern``) at the context's trial configuration; ``springs=False``:
+        the effects' part alone (the springs depend on neither velocity nor acceleration)."""
         J = np.zeros(self.pattern.nnz)
         for eff in self.effects:
             eff.add_jacobian(ctx, J)
-        self.elastic.accumulate(ctx.q, ctx.frames, np.zeros(self.ndof), J, self.twist_hinge, ctx.drive_angle)
+        if springs:
+            self.elastic.accumulate(ctx.q, ctx.frames, np.zeros(self.ndof), J, self.twist_hinge, ctx.drive_angle)
         return J
 
     def residual_and_jacobian(self, ctx: StepContext) -> tuple[np.ndarray, np.ndarray]:

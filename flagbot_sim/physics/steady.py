@@ -71,6 +71,87 @@ class SteadySolution:
     wall_seconds: float = 0.0
 
 
+class _BorderedPattern:
+    """The steady Jacobian's sparsity, built once, and its numerical assembly as one weighted bincount.
+
+    The Jacobian is J00 + Kv Dv + Ka Da on the DOFs (Kv = dR/dv, Ka = dR/da on the model's CSC pattern; Dv, Da the
+    rigid-motion field's derivatives, whose structure is fixed), bordered by the columns Kv dv/domega_t +
+    Ka da/domega_t and Kv dv/dU and the two gauge rows (free robot), with identity rows for prescribed DOFs. Every
+    contribution's target slot is precomputed, so each assembly is products of arrays and one ``np.bincount``:
+    no sparse products, no format conversions."""
+
+    def __init__(self, pattern, N: int, n_edges: int, head: np.ndarray, tail: np.ndarray, fixed: np.ndarray,
+                 gauge: np.ndarray, bordered: bool):
+        ndof = pattern.ndof
+        n = ndof + (2 if bordered else 0)
+        self.n = n
+        k = np.arange(N)
+        e = 3 * N + np.arange(n_edges)
+        # Dv's entries, in the order of the values dv_values() returns
+        self.dv_rows = np.concatenate([3 * k + 1, 3 * k + 2] + [e] * 6)
+        self.dv_cols = np.concatenate([3 * k + 2, 3 * k + 1] + [3 * head + i for i in range(3)]
+                                      + [3 * tail + i for i in range(3)])
+        self.da_rows = self.da_cols = np.concatenate([3 * k + 1, 3 * k + 2])
+        indptr = pattern.indptr.astype(np.int64)
+        srow, scol = pattern.row_of_slot, pattern.col_of_slot
+
+        def product(d_rows, d_cols):
+            """(slots of K, entries of D, target rows, target cols) of every term of K @ D."""
+            counts = indptr[d_rows + 1] - indptr[d_rows]
+            m = np.repeat(np.arange(len(d_rows)), counts)
+            starts = np.repeat(indptr[d_rows] - np.cumsum(counts) + counts, counts)
+            slots = starts + np.arange(counts.sum())
+            return slots, m, srow[slots], d_cols[m]
+
+        self.kv_slots, self.kv_m, r_v, c_v = product(self.dv_rows, self.dv_cols)
+        self.ka_slots, self.ka_m, r_a, c_a = product(self.da_rows, self.da_cols)
+        groups_r = [srow, r_v, r_a]
+        groups_c = [scol, c_v, c_a]
+        if bordered:
+            groups_r += [srow, srow, ndof + np.arange(len(gauge))]
+            groups_c += [np.full(pattern.nnz, ndof), np.full(pattern.nnz, ndof + 1), gauge]
+        groups_r.append(fixed)
+        groups_c.append(fixed)
+        sizes = [len(g) for g in groups_r]
+        rows = np.concatenate(groups_r).astype(np.int64)
+        cols = np.concatenate(groups_c).astype(np.int64)
+        is_fixed = np.zeros(n, bool)
+        is_fixed[fixed] = True
+        keep = ~is_fixed[rows]
+        if len(fixed):
+            keep[-len(fixed):] = True                  # the identity rows themselves
+        key = cols * n + rows
+        uniq, inverse = np.unique(key[keep], return_inverse=True)
+        self.nnz = len(uniq)
+        target = np.full(len(rows), self.nnz)       # contributions to prescribed rows go to a discarded bin
+        target[keep] = inverse
+        self.target = target
+        self.indices = (uniq % n).astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // n, minlength=n))]).astype(np.int32)
+        self.sizes = sizes
+        self.scol = scol
+        self.bordered = bordered
+        self._ones = np.ones(sizes[-1] + (sizes[-2] if bordered else 0))
+
+    @staticmethod
+    def dv_values(Om_n: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """Dv's values: dv/dx = Omega [e_x]x on the nodes; the twist rates' d(Omega_e e_x.t_e)/dx = +-g."""
+        return np.concatenate([-Om_n, Om_n, g[:, 0], g[:, 1], g[:, 2], -g[:, 0], -g[:, 1], -g[:, 2]])
+
+    def assemble(self, J00, Kv, Ka, dv_vals, da_vals, dv_dw=None, da_dw=None, dv_dU=None) -> sp.csc_matrix:
+        """The Jacobian as a CSC matrix (``Ka``/``da_*`` None: without the inertia terms)."""
+        parts = [J00, Kv[self.kv_slots] * dv_vals[self.kv_m]]
+        parts.append(Ka[self.ka_slots] * da_vals[self.ka_m] if Ka is not None else np.zeros(self.sizes[2]))
+        if self.bordered:
+            w = Kv * dv_dw[self.scol]
+            if Ka is not None:
+                w = w + Ka * da_dw[self.scol]
+            parts += [w, Kv * dv_dU[self.scol]]
+        parts.append(self._ones)
+        data = np.bincount(self.target, np.concatenate(parts), minlength=self.nnz + 1)[: self.nnz]
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+
 class SteadySolver:
     """Relative equilibria of one scene (its RobotModel): ``solve(omega_T)``."""
 
@@ -103,6 +184,11 @@ class SteadySolver:
         self._tail, self._head = e[:, 0], e[:, 1]
         self._is_fixed = np.zeros(model.ndof, bool)
         self._is_fixed[self.fixed] = True
+        self._pattern = _BorderedPattern(model.pattern, N, net.n_edges, self._head, self._tail, self.fixed,
+                                         self.gauge, bordered=not self.clamped)
+        self._ex = np.eye(3)[0]
+        self._dv_dU = np.zeros(model.ndof)
+        self._dv_dU[0: 3 * N: 3] = 1.0
 
     # ---------------------------------------------------------------- the rigid-motion velocity field
     def _rates(self, omega_T: float, omega_t: float):
@@ -118,45 +204,32 @@ class SteadySolver:
         return Om_n, Om_e
 
     def fields(self, q, frames_t, omega_T, omega_t, U):
-        """(v, a, dv/domega_t, da/domega_t, dv/dU) as DOF vectors."""
-        N = self.N
+        """(v, a, dv/domega_t, da/domega_t, dv/dU) as DOF vectors (dv/dU is shared: read it, do not write it)."""
+        N, ndof = self.N, self.model.ndof
         x = q[: 3 * N].reshape(N, 3)
-        Om_n, Om_e = self._rates(omega_T, omega_t)
-        ex_cross_x = np.stack([np.zeros(N), -x[:, 2], x[:, 1]], axis=1)     # e_x x x
-        perp = np.stack([np.zeros(N), x[:, 1], x[:, 2]], axis=1)            # (0, y, z)
-        tx = frames_t[:, 0]                                                # e_x . t of every edge
-        v = np.concatenate([(Om_n[:, None] * ex_cross_x).ravel() + np.tile([U, 0.0, 0.0], N), Om_e * tx])
-        a = np.concatenate([(-(Om_n ** 2)[:, None] * perp).ravel(), np.zeros(len(tx))])
-        dv_dw = np.concatenate([ex_cross_x.ravel(), tx])
-        da_dw = np.concatenate([(-2.0 * Om_n[:, None] * perp).ravel(), np.zeros(len(tx))])
-        dv_dU = np.concatenate([np.tile([1.0, 0.0, 0.0], N), np.zeros(len(tx))])
-        return v, a, dv_dw, da_dw, dv_dU
+        _, Om_e = self._rates(omega_T, omega_t)          # every node turns at omega_t (see _rates)
+        v, a, dv_dw, da_dw = (np.zeros(ndof) for _ in range(4))
+        vn, an, wn, dan = (z[: 3 * N].reshape(N, 3) for z in (v, a, dv_dw, da_dw))
+        wn[:, 1] = -x[:, 2]                              # e_x x x
+        wn[:, 2] = x[:, 1]
+        vn[:] = omega_t * wn
+        vn[:, 0] = U
+        an[:, 1:] = -(omega_t * omega_t) * x[:, 1:]      # -Omega^2 (0, y, z)
+        dan[:, 1:] = -2.0 * omega_t * x[:, 1:]
+        tx = frames_t[:, 0]                              # e_x . t of every edge
+        v[3 * N:] = Om_e * tx
+        dv_dw[3 * N:] = tx
+        return v, a, dv_dw, da_dw, self._dv_dU
 
-    def _velocity_jacobians(self, q, fr, omega_T, omega_t):
-        """Dv = dv/dq and Da = da/dq of the rigid-motion field (sparse, ndof x ndof)."""
-        N, net = self.N, self.net
+    def _velocity_derivatives(self, fr, omega_T, omega_t):
+        """Values of Dv = dv/dq and Da = da/dq of the rigid-motion field, on their fixed structure: on the nodes
+        dv/dx = Omega [e_x]x (v_y = -Omega z, v_z = Omega y) and da/dx = -Omega^2 diag(0, 1, 1); the twist rates
+        Omega_e e_x.t_e have d(e_x.t)/dx_head = (e_x - (t.e_x) t) / l, the opposite for the tail."""
         Om_n, Om_e = self._rates(omega_T, omega_t)
-        rows, cols, vals = [], [], []
-        # nodes: dv/dx = Omega [e_x]x  (v_y = -Omega z, v_z = Omega y);  da/dx = -Omega^2 diag(0, 1, 1)
-        k = np.arange(N)
-        rows += [3 * k + 1, 3 * k + 2]
-        cols += [3 * k + 2, 3 * k + 1]
-        vals += [-Om_n, Om_n]
-        # twist rates Omega_e e_x.t_e: d(e_x.t)/dx_head = (e_x - (t.e_x) t) / l, the opposite for the tail
         t, le = fr.t, fr.length
-        g = (np.eye(3)[0][None, :] - t[:, 0:1] * t) / le[:, None] * Om_e[:, None]      # (Ne, 3)
-        erow = 3 * N + np.arange(net.n_edges)
-        for sign, nodes in ((1.0, self._head), (-1.0, self._tail)):
-            for i in range(3):
-                rows.append(erow)
-                cols.append(3 * nodes + i)
-                vals.append(sign * g[:, i])
-        ndof = self.model.ndof
-        Dv = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(ndof, ndof))
-        Da = sp.csc_matrix((np.concatenate([-(Om_n ** 2), -(Om_n ** 2)]),
-                            (np.concatenate([3 * k + 1, 3 * k + 2]), np.concatenate([3 * k + 1, 3 * k + 2]))),
-                           shape=(ndof, ndof))
-        return Dv, Da
+        g = (self._ex[None, :] - t[:, 0:1] * t) * (Om_e / le)[:, None]
+        sq = -(Om_n ** 2)
+        return self._pattern.dv_values(Om_n, g), np.concatenate([sq, sq])
 
     # ---------------------------------------------------------------- residual and Jacobian
     def _context(self, q, fr, v, a, dv, da) -> StepContext:
@@ -181,38 +254,17 @@ class SteadySolver:
         v, a, dv_dw, da_dw, dv_dU = self.fields(q, fr.t, omega_T, omega_t, U)
         ctx = self._context(q, fr, v, a, 0.0, 0.0)
         r, J00 = model.residual_and_jacobian(ctx)
+        E00 = model.jacobian(ctx, springs=False)                     # the effects' part of J00
         ctx.dv_dq, ctx.da_dq = 1.0, 0.0
-        Kv = model.pattern.matrix(model.jacobian(ctx) - J00)          # dR/dv
-        ctx.dv_dq, ctx.da_dq = 0.0, 1.0
-        Ka = model.pattern.matrix(model.jacobian(ctx) - J00)          # dR/da
-        Dv, Da = self._velocity_jacobians(q, fr, omega_T, omega_t)
-        J = model.pattern.matrix(J00) + Kv @ Dv
+        Kv = model.jacobian(ctx, springs=False) - E00                # dR/dv
+        Ka = None
         if inertia:
-            J = J + Ka @ Da
-        J = J.tocoo()
-        rows, cols, vals = J.row, J.col, J.data
-        fixed = self.fixed
-        ndof = model.ndof
-        if len(fixed):                 # prescribed DOFs: identity rows
-            keep = ~self._is_fixed[rows]
-            rows, cols, vals = rows[keep], cols[keep], vals[keep]
-            rows = np.concatenate([rows, fixed])
-            cols = np.concatenate([cols, fixed])
-            vals = np.concatenate([vals, np.ones(len(fixed))])
-            r[fixed] = 0.0
-        if self.clamped:
-            return r, sp.csc_matrix((vals, (rows, cols)), shape=(ndof, ndof)), fr
-        col_w = Kv @ dv_dw + (Ka @ da_dw if inertia else 0.0)
-        col_U = Kv @ dv_dU
-        col_w[fixed] = 0.0
-        col_U[fixed] = 0.0
-        nw = np.nonzero(col_w)[0]
-        nU = np.nonzero(col_U)[0]
-        ng = len(self.gauge)
-        rows = np.concatenate([rows, nw, nU, ndof + np.arange(ng)])
-        cols = np.concatenate([cols, np.full(len(nw), ndof), np.full(len(nU), ndof + 1), self.gauge])
-        vals = np.concatenate([vals, col_w[nw], col_U[nU], np.ones(ng)])
-        return r, sp.csc_matrix((vals, (rows, cols)), shape=(ndof + 2, ndof + 2)), fr
+            ctx.dv_dq, ctx.da_dq = 0.0, 1.0
+            Ka = model.jacobian(ctx, springs=False) - E00            # dR/da
+        dv_vals, da_vals = self._velocity_derivatives(fr, omega_T, omega_t)
+        r[self.fixed] = 0.0
+        A = self._pattern.assemble(J00, Kv, Ka, dv_vals, da_vals, dv_dw, da_dw, dv_dU)
+        return r, A, fr
 
     # ---------------------------------------------------------------- Newton
     def _norm(self, r: np.ndarray) -> float:
