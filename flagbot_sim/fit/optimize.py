@@ -140,7 +140,7 @@ def score(res: dict, objective: str, max_power: float | None, allow_unstable: bo
     if res["stable"] is None and not allow_unstable:
         return value, False, "stability unknown"
     if max_power is not None and not (P <= max_power):
-        return value, False, f"needs {P:.3g} W"
+        return value, False, "over the power budget"
     return value, True, ""
 
 
@@ -198,7 +198,7 @@ def refine(task: dict) -> dict:
 
     def f(u) -> float:
         rec = evaluate_u(u)
-        if rec["feasible"] or (method == "cobyqa" and rec["reason"].startswith("needs")):
+        if rec["feasible"] or (method == "cobyqa" and rec["reason"] == "over the power budget"):
             return -rec["objective"] / scale           # over the budget: COBYQA's constraint says so
         return PENALTY
 
