@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import signal
 import sys
 from pathlib import Path
 
@@ -190,7 +191,34 @@ def _row_lines(title: str, rows: list[dict], outputs: list[str], r_needs_std: bo
     return "\n".join(out)
 
 
+def _interruptible(command):
+    """Ctrl-C or SIGTERM (a batch scheduler's stop, as for sweeps): the pool's workers are stopped (Engine's
+    exit), one line instead of a traceback, status 128 + the signal."""
+    from ..sweep.cli import Terminated, _on_sigterm
+
+    def run(args) -> int:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+        try:
+            return command(args)
+        except KeyboardInterrupt as exc:
+            what, sig = ("terminated", signal.SIGTERM) if isinstance(exc, Terminated) else \
+                ("interrupted", signal.SIGINT)
+            print(f"flagbot {args.command}: {what}; its output files are not written", file=sys.stderr)
+            return 128 + sig
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    return run
+
+
 def cmd_fit(args) -> int:
+    return _interruptible(_cmd_fit)(args)
+
+
+def cmd_optimize(args) -> int:
+    return _interruptible(_cmd_optimize)(args)
+
+
+def _cmd_fit(args) -> int:
     from .data import read_data
     from .fit import parse_bounds, parse_parameters, predict, run_fit
     base = load_scene(args.scene, args.overrides)
@@ -289,7 +317,7 @@ def format_search(res: dict, top: int) -> str:
     return "\n".join(lines)
 
 
-def cmd_optimize(args) -> int:
+def _cmd_optimize(args) -> int:
     from .fit import FitError
     from .optimize import parse_vary, run_search
     base = load_scene(args.scene, args.overrides)
