@@ -78,14 +78,13 @@ def figure_fit(fit: dict, predicted: dict | None = None, curves: dict | None = N
         if rpm_varies:
             ax.set_xlabel("omega_T (rpm)")
             ax.set_ylabel(name)
+            ax.axhline(0.0, color="0.85", lw=0.6, zorder=0)
         else:
-            lims = [v for a in ax.get_lines() for v in a.get_xdata()]
-            if lims:
-                lo, hi = min(lims), max(lims)
-                ax.plot([lo, hi], [lo, hi], color="0.6", lw=0.8)
+            (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+            lo, hi = min(x0, y0), max(x1, y1)
+            ax.plot([lo, hi], [lo, hi], color="0.6", lw=0.8, label="simulated = measured")
             ax.set_xlabel(f"measured {name}")
             ax.set_ylabel(f"simulated {name}")
-        ax.axhline(0.0, color="0.85", lw=0.6, zorder=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     if title:
