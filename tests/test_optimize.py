@@ -39,6 +39,23 @@ def test_steady_efficiency_outputs_obey_the_balances(overrides):
     assert s["cost_of_transport"] == pytest.approx(s["power"] / (mass * G_STANDARD * abs(s["v"])), rel=1e-14)
 
 
+def test_run_summary_reports_the_same_efficiency_outputs():
+    """`flagbot run --json` (Simulation.summary): power = torque x omega_T, cost of transport P / (m g |v|), and
+    after the run-up the torque and speed of the steady state (implicit Euler at the paper's dt: ~1%)."""
+    from flagbot_sim.physics import Simulation
+    sc = load_scene("design2", ["flagellum.length=0.05"])
+    sim = Simulation(sc)
+    sim.run(4.0)
+    out = sim.summary()
+    mass = float(sim.model.net.node_mass.sum())
+    assert out["power"] == pytest.approx(out["motor_torque"] * out["omega_T"], rel=1e-14)
+    assert out["cost_of_transport"] == pytest.approx(out["power"] / (mass * G_STANDARD * abs(out["v"])), rel=1e-14)
+    m = RobotModel(sc)
+    st = summary(m, SteadySolver(m).solve(sc.omega_T))
+    assert out["motor_torque"] == pytest.approx(st["motor_torque"], rel=2e-2)
+    assert out["cost_of_transport"] == pytest.approx(st["cost_of_transport"], rel=3e-2)
+
+
 def fine_sweep(base, rpms):
     rows = [{"index": i, "overrides": {"motor.omega_rpm": float(r)}} for i, r in enumerate(rpms)]
     return evaluate(Engine("serial"), base, [{}], rows, stability=True)[0]
