@@ -163,6 +163,8 @@ def test_bad_inputs_are_refused_with_the_reason(tmp_path):
         parse_parameters("n", base)
     with pytest.raises(FitError, match="only real-valued"):
         parse_parameters("numerics.linear_solver", base)
+    with pytest.raises(FitError, match="head.C1: the start value is 0"):
+        parse_parameters("head.C1", base.with_overrides({"head.C1": 0.0}))
 
 
 def test_flagbot_fit_as_users_run_it(experiments):

@@ -110,7 +110,10 @@ def parse_parameters(text: str, base: Scene, bounds: dict[str, tuple[float, floa
         hi = meta["le"] if meta["le"] is not None else meta["lt"]
         lo = -math.inf if lo is None else float(lo)
         hi = math.inf if hi is None else float(hi)
-        log = lo >= 0.0 and start > 0.0
+        if lo >= 0.0 and start == 0.0:
+            raise FitError(f"--fit {key}: the start value is 0; a positive key is fitted in log space, so give a "
+                           f"positive start with --set {key}=...")
+        log = lo >= 0.0
         if key in bounds:
             blo, bhi = bounds[key]
             if not (blo < bhi):
@@ -129,8 +132,6 @@ def parse_parameters(text: str, base: Scene, bounds: dict[str, tuple[float, floa
         if not (lo <= start <= hi):
             raise FitError(f"the start value {key} = {start:g} (from the scene, or --set) is outside the bounds "
                            f"[{lo:g}, {hi:g}]")
-        if log and start == 0.0:
-            raise FitError(f"--fit {key}: the start value is 0; give a positive start with --set {key}=...")
         out.append(Parameter(key, start, lo, hi, log))
     return out
 
