@@ -35,6 +35,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sweep": ("flagbot_sim.sweep", "parameter sweep: DER to steady state and the beam balance at every grid "
                                    "point, one tidy CSV, resumable, plus the paper's figures"),
     "sweep-plot": ("flagbot_sim.sweep", "redraw a sweep's figures and summary from DIR/results.csv alone"),
+    "fit": ("flagbot_sim.fit", "fit scene constants (C1, C2, mu, ...) to measured steady states, 95%% intervals"),
+    "optimize": ("flagbot_sim.fit", "search designs (n, L, omega_rpm, ...) for the fastest or most efficient robot"),
     "record": ("flagbot_sim.bagtools", "record flagbot topics to MCAP (rosbag2 layout) until Ctrl-C"),
     "replay": ("flagbot_sim.bagtools", "replay an MCAP recording with its timing and /clock"),
     "bag-summary": ("flagbot_sim.bagtools", "topics, counts, duration and the steady state of each omega_T step"),

@@ -157,6 +157,12 @@ class FlagellumSection:
 @dataclass(frozen=True)
 class MediumSection:
     mu: float = _f(6.828, "Pa*s", "medium coefficient mu (RFT and Stokes terms)", gt=0.0, le=1.0e10)
+    # the 'granular_yield' effect's constants (docs/physics.md, "Granular yield"): the default puts design 1's
+    # threshold (n = 2) at the paper's omega_T^s ~ 50 rpm
+    yield_force: float = _f(5.35e-4, "N", "granular yield: force the head must overcome to move (used only with "
+                                         "the 'granular_yield' effect)", ge=0.0, le=1.0e6)
+    yield_speed: float = _f(1.0e-7, "m/s", "granular yield: regularisation speed v_eps of the Coulomb law (the "
+                                           "creep speed scale below the threshold)", gt=0.0, le=1.0e3)
 
 
 @dataclass(frozen=True)

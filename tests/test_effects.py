@@ -33,9 +33,19 @@ def moving_robot(scene="design1", extra=()):
     return sim
 
 
-@pytest.mark.parametrize("name", ["inertia", "rft", "head_drag", "head_torque", "gravity"])
-def test_effect_jacobian_matches_finite_differences(name):
-    m, s, plan, q = newton_point(moving_robot(), noise_seed=2)
+WITH_YIELD = f"scene.effects={ALL_FREE[:-1]},'granular_yield']"
+# the granular yield is nonlinear in the head velocity on the scale max(|v|, v_eps): the noisy point's head nodes
+# move at ~1e-3 m/s, so a step of 1e-9 m (1e-7 m/s) resolves it; at the default v_eps = 1e-7 m/s the law is
+# saturated (Coulomb, |F| = F_y), with v_eps = 1e-3 m/s it is in its regularised range
+EFFECT_CASES = [("inertia", (), 1e-7), ("rft", (), 1e-7), ("head_drag", (), 1e-7), ("head_torque", (), 1e-7),
+                ("gravity", (), 1e-7), ("granular_yield", (WITH_YIELD,), 1e-9),
+                ("granular_yield", (WITH_YIELD, "medium.yield_speed=1e-3"), 1e-9)]
+
+
+@pytest.mark.parametrize("name,extra,h", EFFECT_CASES, ids=[f"{c[0]}{'-' + c[1][-1] if len(c[1]) > 1 else ''}"
+                                                           for c in EFFECT_CASES])
+def test_effect_jacobian_matches_finite_differences(name, extra, h):
+    m, s, plan, q = newton_point(moving_robot(extra=extra), noise_seed=2)
     eff = m.effect(name)
 
     def F(qq):
@@ -44,7 +54,7 @@ def test_effect_jacobian_matches_finite_differences(name):
     ctx = m.context(q, s, plan)
     assert np.all(np.isfinite(F(q))) and np.linalg.norm(F(q)) > 0
     J = dense_effect_jacobian(m, eff, ctx)
-    J_fd = fd_jacobian(F, q, 1e-7)
+    J_fd = fd_jacobian(F, q, h)
     if name == "gravity":
         assert np.abs(J_fd).max() < 1e-9 and not eff.blocks() and not J.any()   # constant force: no Jacobian
     else:

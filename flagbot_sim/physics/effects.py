@@ -363,7 +363,56 @@ class Clamp(Driver):
         return np.concatenate([x.ravel(), theta])
 
 
+# ----------------------------------------------------------------------------------------------- granular yield
+class GranularYield(Effect):
+    """Yield of the granular medium against the head's translation: a regularised Coulomb law,
+
+        F_k = -(F_y / 3) v_k / sqrt(|v_k|^2 + v_eps^2)       on each head node k (x0, x1, x2)
+
+    (F_y = ``medium.yield_force``, v_eps = ``medium.yield_speed``). Granular media resist the onset of motion
+    with a finite force, whatever the speed: a robot whose flagella push with less than F_y stays put (it creeps
+    at |v| ~ v_eps T / F_y), above it the excess thrust drives it against the viscous (Stokes, RFT) drag: the
+    paper's threshold motor speed omega_T^s, below which its robots did not move. The law is isotropic, on every
+    head node's own velocity (split like the head drag): frame-invariant, with no axis to pick (so no position
+    dependence and no extra Jacobian terms), and at steady swimming, where the head nodes move along the axis,
+    it is exactly the axial law F = -F_y v/sqrt(v^2+v_eps^2). It is smooth (C-infinity) for v_eps > 0; its
+    velocity Jacobian F_y/3 (I - v v^T/s^2)/s, s = sqrt(|v|^2 + v_eps^2), is symmetric positive definite (a
+    damping, so it never destabilises an implicit step), largest, F_y/(3 v_eps), at rest.
+    """
+    name = "granular_yield"
+    description = ("yield of the granular medium on the head: regularised Coulomb resistance "
+                   "-F_y*v/sqrt(|v|^2+v_eps^2) (stays put below a threshold motor speed)")
+    on_head = True
+
+    def __init__(self, net: RodNetwork, yield_force: float, yield_speed: float):
+        self.f = float(yield_force) / len(net.head_nodes)
+        self.eps2 = float(yield_speed) ** 2
+        self.dofs = net.node_dofs(net.head_nodes)                 # (3 nodes, 3)
+
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, scene.medium.yield_force, scene.medium.yield_speed)
+
+    def blocks(self):
+        return [(self.dofs, self.dofs)]
+
+    def _velocities(self, ctx):
+        v = ctx.v[self.dofs]                                       # (3, 3)
+        return v, np.sqrt(np.einsum("ki,ki->k", v, v) + self.eps2)
+
+    def add_force(self, ctx, r):
+        v, s = self._velocities(ctx)
+        r[self.dofs] += (self.f / s)[:, None] * v
+
+    def add_jacobian(self, ctx, J):
+        # F depends on q only through v = dv_dq q + v0
+        v, s = self._velocities(ctx)
+        d = (self.f / s)[:, None, None] * (np.eye(3)[None] - v[:, :, None] * v[:, None, :] / (s * s)[:, None, None])
+        J[self.slots[0]] += (d * ctx.dv_dq).ravel()
+
+
 #: every effect a scene may list, by name, in the order ``flagbot scenes`` shows them (scipy's METHODS shape:
 #: adding an effect is one class here plus, if it has constants, its keys in a scene section)
 EFFECT_TYPES: dict[str, type[Effect]] = {cls.name: cls for cls in
-                                         (Inertia, RFTDrag, HeadDrag, HeadTorque, Motor, Clamp, Gravity)}
+                                         (Inertia, RFTDrag, HeadDrag, HeadTorque, Motor, Clamp, Gravity,
+                                          GranularYield)}
