@@ -276,7 +276,13 @@ class HeadTorque(Effect):
     """Stokes torque on the head spin, T = -C2 8 pi mu R_h^3 omega_h (paper Eq. stokes_torque_refined).
 
     omega_h is the spin rate of the head body's material frame about its tangent, which for a time-parallel
-    transported reference frame is exactly d(theta^0)/dt; the torque acts on that twist DOF.
+    transported reference frame is exactly d(theta^0)/dt; the torque acts on that twist DOF. A torque about the
+    tangent also does work when the tangent moves: the material frame then spins by d(theta) + dOmega/dx dx, with
+    Omega the holonomy of the transport from the committed tangent (elastic._edge_holonomy), so the head's nodes
+    receive T dOmega/dx. It vanishes while the head's tangent is its committed one (a time step along a fixed axis,
+    every relative equilibrium), but its derivative does not: without it the linearisation about a steady state,
+    whose frames stay those of the equilibrium, is not invariant under tilting the whole robot (a tilt looked
+    like a slowly growing precession, and design 1 "unstable" above ~117 rpm).
     """
     name = "head_torque"
     description = "Stokes torque on the head spin, -C2*8*pi*mu*R_h^3*omega_h"
@@ -284,20 +290,52 @@ class HeadTorque(Effect):
 
     def __init__(self, net: RodNetwork, coefficient: float):
         self.c = float(coefficient)
+        self.edge = int(net.head_edge)
         self.dof = int(net.edge_dof(net.head_edge))
+        a, b = net.edges[self.edge]
+        self.x_dofs = net.node_dofs([a, b]).ravel()                                  # [x_a, x_b]
+        self._g = np.zeros((1, 3))
+        self._H = np.zeros((1, 3, 3))
 
     @classmethod
     def from_scene(cls, scene, net, elastic):
         return cls(net, scene.head_torque_coefficient)
 
     def blocks(self):
-        return [(np.array([[self.dof]]), np.array([[self.dof]]))]
+        th = np.array([[self.dof]])
+        xs = self.x_dofs[None, :]
+        return [(th, th), (xs, xs), (xs, th)]
+
+    def _connection(self, fr):
+        """g = dOmega/de of the head edge (e = x_b - x_a; elastic._edge_holonomy) and its derivative dg/de.
+
+        g = -(t_c x t) / ((1 + c) l), c = t_c . t: the torque is not conservative, so its nodal force T g has the
+        Jacobian T dg/de (not symmetric), not T d2Omega/de2."""
+        from .elastic import _edge_holonomy
+        k = slice(self.edge, self.edge + 1)
+        _edge_holonomy(fr.t[k], fr.t_committed[k], fr.length[k], self._g, self._H, False)
+        g = self._g[0]
+        t, tc, le = fr.t[self.edge], fr.t_committed[self.edge], fr.length[self.edge]
+        c = float(tc @ t)
+        w = np.cross(tc, t)
+        tc_x = np.array([[0.0, -tc[2], tc[1]], [tc[2], 0.0, -tc[0]], [-tc[1], tc[0], 0.0]])
+        df_dt = -tc_x / ((1.0 + c) * le) + np.outer(w, tc) / ((1.0 + c) ** 2 * le)
+        P = np.eye(3) - np.outer(t, t)
+        return g, df_dt @ P / le - np.outer(g, t) / le
 
     def add_force(self, ctx, r):
-        r[self.dof] += self.c * ctx.v[self.dof]
+        tq = self.c * ctx.v[self.dof]                  # -T
+        r[self.dof] += tq
+        g = self._connection(ctx.frames)[0]
+        r[self.x_dofs[:3]] -= tq * g
+        r[self.x_dofs[3:]] += tq * g
 
     def add_jacobian(self, ctx, J):
+        tq = self.c * ctx.v[self.dof]
+        g, D = self._connection(ctx.frames)
         J[self.slots[0][0]] += self.c * ctx.dv_dq
+        J[self.slots[1]] += (np.block([[D, -D], [-D, D]]) * tq).ravel()      # d/dx (tq g) on [x_a, x_b]
+        J[self.slots[2]] += self.c * ctx.dv_dq * np.concatenate([-g, g])      # d/dtheta (tq g)
 
 
 # ----------------------------------------------------------------------------------------------- drivers

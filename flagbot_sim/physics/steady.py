@@ -39,6 +39,13 @@ from .model import RobotModel, State
 from .observe import efficiency
 
 
+#: a mode is the symmetry's neutral one when mu = +-i omega_t to this relative tolerance (round-off splits the
+#: double eigenvalue of the shift and tilt pair, a Jordan block, by ~1e-5 omega_t)
+NEUTRAL_RTOL = 1e-4
+#: the stability analysis examines at most this many modes (those of smallest |mu|)
+MAX_MODES = 192
+
+
 class SteadyFailed(RuntimeError):
     """No relative equilibrium was found; the message says at which omega_T and why."""
 
@@ -49,7 +56,7 @@ class Stability:
     stable: bool
     rate: float                  # 1/s: largest real part of the growth rates of the non-neutral modes (< 0: decay)
     rates: list                  # the slowest growth rates found (1/s), largest real part first
-    neutral: int                 # modes with zero growth: a rigid sideways shift of the whole robot
+    neutral: int                 # modes with zero growth: sideways shift and tilt of the whole robot
 
     def to_dict(self) -> dict:
         return {"stable": self.stable, "slowest_rate": self.rate, "neutral_modes": self.neutral,
@@ -187,6 +194,7 @@ class SteadySolver:
         self._pattern = _BorderedPattern(model.pattern, N, net.n_edges, self._head, self._tail, self.fixed,
                                          self.gauge, bordered=not self.clamped)
         self._ex = np.eye(3)[0]
+        self._inertia = True          # the centripetal load (False: the overdamped problem, for stability)
         self._dv_dU = np.zeros(model.ndof)
         self._dv_dU[0: 3 * N: 3] = 1.0
 
@@ -214,8 +222,9 @@ class SteadySolver:
         wn[:, 2] = x[:, 1]
         vn[:] = omega_t * wn
         vn[:, 0] = U
-        an[:, 1:] = -(omega_t * omega_t) * x[:, 1:]      # -Omega^2 (0, y, z)
-        dan[:, 1:] = -2.0 * omega_t * x[:, 1:]
+        if self._inertia:
+            an[:, 1:] = -(omega_t * omega_t) * x[:, 1:]  # -Omega^2 (0, y, z)
+            dan[:, 1:] = -2.0 * omega_t * x[:, 1:]
         tx = frames_t[:, 0]                              # e_x . t of every edge
         v[3 * N:] = Om_e * tx
         dv_dw[3 * N:] = tx
@@ -250,6 +259,7 @@ class SteadySolver:
         ``inertia=False`` leaves out the centripetal load's derivatives (for the overdamped stability analysis,
         which must then leave out the Coriolis and relative accelerations too)."""
         model = self.model
+        inertia = inertia and self._inertia
         fr = model.elastic.trial_frames(q, committed)
         v, a, dv_dw, da_dw, dv_dU = self.fields(q, fr.t, omega_T, omega_t, U)
         ctx = self._context(q, fr, v, a, 0.0, 0.0)
@@ -404,41 +414,69 @@ class SteadySolver:
                               frames=committed, residual=rn, iterations=iterations, continuation=path,
                               wall_seconds=time.perf_counter() - t0)
 
-    def stability(self, sol: SteadySolution, k: int = 6) -> Stability:
-        """Growth rates of small perturbations of the equilibrium, in the frame that follows its rigid motion.
-
-        Inertia is negligible at this Reynolds number (rho A omega / eta_p ~ 1e-5), so perturbations obey the
-        overdamped linearisation  A dz + M d(dz)/dt = 0 (inertia left out entirely: its centripetal part alone,
-        without the Coriolis and relative accelerations, would make the neutral sideways shift of a heavy head
-        look unstable), where A is the bordered steady Jacobian (the gauge fixes
-        translation and rotation; omega_t and U adjust instantly, as force and torque balance demand) and M is
-        dR/dv on the DOFs (the medium's damping). The slowest modes, mu closest to 0, are the largest
-        eigenvalues nu = 1/mu of -A^-1 M, found by ARPACK with A factorised once. Stable when every mu found has
-        a negative real part."""
+    def linearization(self, sol: SteadySolution):
+        """(A, M, omega_t) of the overdamped linearisation A dz + M d(dz)/dt = 0 about ``sol`` (see
+        :meth:`stability`); z = (q, omega_t, U) for the free robot, q for the clamped flagellum."""
         model = self.model
         q, fr = sol.q, sol.frames
         omega_t, U = sol.omega_t, -sol.v
+        if "inertia" in model.effect_names:
+            self._inertia = False
+            try:
+                q_g = q[self.gauge]
+                q, omega_t, U, _, _, fr_t = self.newton(q.copy(), fr, sol.omega_T, omega_t, U, q_g)
+                fr = EdgeFrames.of(fr_t)
+            finally:
+                self._inertia = True
         _, A, _ = self.system(q, fr, sol.omega_T, omega_t, U, inertia=False)
         v, a, *_ = self.fields(q, fr.t, sol.omega_T, omega_t, U)
         ctx = self._context(q, model.elastic.trial_frames(q, fr), v, a, 0.0, 0.0)
-        J00 = model.jacobian(ctx)
+        E00 = model.jacobian(ctx, springs=False)
         ctx.dv_dq = 1.0
-        Kv = model.pattern.matrix(model.jacobian(ctx) - J00).tolil()
-        if len(self.fixed):
-            Kv[self.fixed, :] = 0.0
+        Kv = model.pattern.matrix(model.jacobian(ctx, springs=False) - E00).tocoo()
+        keep = ~self._is_fixed[Kv.row]
         n = A.shape[0]
-        M = sp.bmat([[Kv.tocsc(), None], [None, sp.csc_matrix((n - model.ndof, n - model.ndof))]], format="csc") \
-            if n > model.ndof else Kv.tocsc()
+        M = sp.csc_matrix((Kv.data[keep], (Kv.row[keep], Kv.col[keep])), shape=(n, n))
+        return A, M, omega_t
+
+    def stability(self, sol: SteadySolution, k: int = 12) -> Stability:
+        """Growth rates of small perturbations of the equilibrium, in the frame that follows its rigid motion.
+
+        Inertia is negligible at this Reynolds number (rho A omega / eta_p ~ 1e-5), so perturbations obey the
+        overdamped linearisation  A dz + M d(dz)/dt = 0, where A is the bordered steady Jacobian (the gauge fixes
+        translation along and rotation about the axis; omega_t and U adjust instantly, as force and torque balance
+        demand) and M is dR/dv on the DOFs (the medium's damping). It is taken about the overdamped problem's own
+        equilibrium (a few Newton iterations from ``sol`` with the centripetal load left out): linearising the
+        overdamped operator about the equilibrium with inertia is inconsistent at O(inertia), enough to tip the
+        neutral modes. The slowest modes, mu closest to 0, are the largest eigenvalues nu = 1/mu of -A^-1 M,
+        found by ARPACK with A factorised once, as many as it takes to reach the neutral modes' |mu| = omega_t (so
+        every mode slower than the turning itself is examined; the tests compare with the whole spectrum of
+        dense solves). Stable when every mu found has a negative real part, apart from
+        the neutral modes of the symmetry: a sideways shift and a tilt of the whole robot (it swims the same
+        along any axis, from any point) appear in the turning frame as oscillations at exactly +-i omega_t."""
+        A, M, omega_t = self.linearization(sol)
+        n = A.shape[0]
         lu = spla.splu(A, permc_spec="COLAMD")
         op = spla.LinearOperator((n, n), matvec=lambda z: -lu.solve(M @ z), dtype=float)
+        scale = max(abs(omega_t), 1e-12)
         k = min(k, n - 2)
-        nu = spla.eigs(op, k=k, which="LM", return_eigenvectors=False, tol=1e-10, maxiter=5000)
-        nu = nu[np.abs(nu) > 1e-300]
-        mu = 1.0 / nu
-        mu = mu[np.argsort(-mu.real)]
-        # a sideways shift of the whole robot is neutral (it turns about its own axis wherever it is): zero real
-        # part to round-off, seen in the turning frame as an oscillation at omega_t
-        neutral = np.abs(mu.real) <= 1e-7 * max(1.0, abs(sol.omega_T))
+        while True:
+            try:
+                nu = spla.eigs(op, k=k, which="LM", return_eigenvectors=False, tol=1e-10, maxiter=5000)
+            except spla.ArpackNoConvergence as exc:      # the converged ones are still eigenvalues
+                nu = exc.eigenvalues
+            nu = nu[np.abs(nu) > 1e-300]
+            mu = 1.0 / nu
+            mu = mu[np.argsort(-mu.real)]
+            if self.clamped:
+                neutral = np.zeros(len(mu), bool)
+                break
+            neutral = (np.abs(mu.real) <= NEUTRAL_RTOL * scale) & \
+                      (np.abs(np.abs(mu.imag) - abs(omega_t)) <= NEUTRAL_RTOL * scale)
+            # every mode with |mu| below the neutral ones' omega_t is examined: more modes until they are found
+            if neutral.sum() >= 4 or k >= min(MAX_MODES, n - 2):
+                break
+            k = min(2 * k, MAX_MODES, n - 2)
         rest = mu[~neutral]
         rate = float(rest[0].real) if len(rest) else 0.0
         return Stability(stable=rate < 0.0, rate=rate, rates=[complex(m) for m in mu], neutral=int(neutral.sum()))
