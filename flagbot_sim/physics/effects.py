@@ -289,13 +289,14 @@ class HeadTorque(Effect):
     on_head = True
 
     def __init__(self, net: RodNetwork, coefficient: float):
+        from .elastic import tangent_torque      # compiled; built with the model, which imports elastic anyway
+        self._kernel = tangent_torque
         self.c = float(coefficient)
         self.edge = int(net.head_edge)
         self.dof = int(net.edge_dof(net.head_edge))
         a, b = net.edges[self.edge]
-        self.x_dofs = net.node_dofs([a, b]).ravel()                                  # [x_a, x_b]
-        self._g = np.zeros((1, 3))
-        self._H = np.zeros((1, 3, 3))
+        self.x_dofs = net.node_dofs([a, b]).ravel().astype(np.int64)             # [x_tail, x_head]
+        self._none = np.zeros(0, np.int64)
 
     @classmethod
     def from_scene(cls, scene, net, elastic):
@@ -306,36 +307,19 @@ class HeadTorque(Effect):
         xs = self.x_dofs[None, :]
         return [(th, th), (xs, xs), (xs, th)]
 
-    def _connection(self, fr):
-        """g = dOmega/de of the head edge (e = x_b - x_a; elastic._edge_holonomy) and its derivative dg/de.
-
-        g = -(t_c x t) / ((1 + c) l), c = t_c . t: the torque is not conservative, so its nodal force T g has the
-        Jacobian T dg/de (not symmetric), not T d2Omega/de2."""
-        from .elastic import _edge_holonomy
-        k = slice(self.edge, self.edge + 1)
-        _edge_holonomy(fr.t[k], fr.t_committed[k], fr.length[k], self._g, self._H, False)
-        g = self._g[0]
-        t, tc, le = fr.t[self.edge], fr.t_committed[self.edge], fr.length[self.edge]
-        c = float(tc @ t)
-        w = np.cross(tc, t)
-        tc_x = np.array([[0.0, -tc[2], tc[1]], [tc[2], 0.0, -tc[0]], [-tc[1], tc[0], 0.0]])
-        df_dt = -tc_x / ((1.0 + c) * le) + np.outer(w, tc) / ((1.0 + c) ** 2 * le)
-        P = np.eye(3) - np.outer(t, t)
-        return g, df_dt @ P / le - np.outer(g, t) / le
-
     def add_force(self, ctx, r):
         tq = self.c * ctx.v[self.dof]                  # -T
         r[self.dof] += tq
-        g = self._connection(ctx.frames)[0]
-        r[self.x_dofs[:3]] -= tq * g
-        r[self.x_dofs[3:]] += tq * g
+        fr = ctx.frames
+        self._kernel(fr.t, fr.t_committed, fr.length, self.edge, tq, 0.0, self.x_dofs, r, np.empty(0),
+                     self._none, self._none, False)
 
     def add_jacobian(self, ctx, J):
         tq = self.c * ctx.v[self.dof]
-        g, D = self._connection(ctx.frames)
         J[self.slots[0][0]] += self.c * ctx.dv_dq
-        J[self.slots[1]] += (np.block([[D, -D], [-D, D]]) * tq).ravel()      # d/dx (tq g) on [x_a, x_b]
-        J[self.slots[2]] += self.c * ctx.dv_dq * np.concatenate([-g, g])      # d/dtheta (tq g)
+        fr = ctx.frames
+        self._kernel(fr.t, fr.t_committed, fr.length, self.edge, tq, self.c * ctx.dv_dq, self.x_dofs,
+                     np.zeros(len(ctx.q)), J, self.slots[1], self.slots[2], True)
 
 
 # ----------------------------------------------------------------------------------------------- drivers

@@ -299,6 +299,64 @@ def _hessians(V, S, W, G, sign, k_bend, k_twist, Hs):
 
 
 @njit(cache=True)
+def _connection(t0, t1, t2, c0, c1, c2, le):
+    """dOmega/de = -(t_c x t) / ((1 + t_c . t) l): the spin of the transported reference frame per change of the
+    edge vector e (see _edge_holonomy). Returns (g0, g1, g2, c) with c = t_c . t."""
+    c = c0 * t0 + c1 * t1 + c2 * t2
+    w0, w1, w2 = cross3(c0, c1, c2, t0, t1, t2)
+    f = -1.0 / ((1.0 + c) * le)
+    return f * w0, f * w1, f * w2, c
+
+
+@njit(cache=True)
+def tangent_torque(t, tc, length, edge, tq, dtq, x_dofs, r, J, s_xx, s_xth, want_jacobian):
+    """The nodal force of a torque -tq about an edge's tangent, and its Jacobian.
+
+    When the tangent moves, the material frame spins by d(theta) + g . de (g = dOmega/de, the transport's
+    connection), so the torque T = -tq does work T g . de: the residual gets +tq g on the edge's head node and
+    -tq g on its tail (``x_dofs`` = [x_tail, x_head]). Jacobian: tq dg/de on the edge block [[D, -D], [-D, D]]
+    (not symmetric: the torque is not conservative), and dtq/dtheta g on the twist column, with
+    dg/de = [-[t_c]x / ((1 + c) l) + (t_c x t) t_c^T / ((1 + c)^2 l)] P / l - g t^T / l, P = I - t t^T."""
+    t0, t1, t2 = t[edge, 0], t[edge, 1], t[edge, 2]
+    c0, c1, c2 = tc[edge, 0], tc[edge, 1], tc[edge, 2]
+    le = length[edge]
+    g0, g1, g2, c = _connection(t0, t1, t2, c0, c1, c2, le)
+    g = (g0, g1, g2)
+    for i in range(3):
+        r[x_dofs[i]] -= tq * g[i]
+        r[x_dofs[3 + i]] += tq * g[i]
+    if not want_jacobian:
+        return
+    tv = (t0, t1, t2)
+    cv = (c0, c1, c2)
+    w = cross3(c0, c1, c2, t0, t1, t2)
+    a = 1.0 / ((1.0 + c) * le)
+    b = 1.0 / ((1.0 + c) ** 2 * le)
+    # df/dt = -a [t_c]x + b w t_c^T
+    F = np.empty((3, 3))
+    F[0, 0], F[0, 1], F[0, 2] = 0.0, a * c2, -a * c1
+    F[1, 0], F[1, 1], F[1, 2] = -a * c2, 0.0, a * c0
+    F[2, 0], F[2, 1], F[2, 2] = a * c1, -a * c0, 0.0
+    for i in range(3):
+        for j in range(3):
+            F[i, j] += b * w[i] * cv[j]
+    D = np.empty((3, 3))
+    for i in range(3):
+        Ft = F[i, 0] * t0 + F[i, 1] * t1 + F[i, 2] * t2
+        for j in range(3):
+            D[i, j] = ((F[i, j] - Ft * tv[j]) - g[i] * tv[j]) / le
+    for i in range(3):
+        for j in range(3):
+            v = tq * D[i, j]
+            J[s_xx[6 * i + j]] += v              # (tail, tail)
+            J[s_xx[6 * i + 3 + j]] -= v          # (tail, head)
+            J[s_xx[6 * (3 + i) + j]] -= v        # (head, tail)
+            J[s_xx[6 * (3 + i) + 3 + j]] += v    # (head, head)
+        J[s_xth[i]] -= dtq * g[i]
+        J[s_xth[3 + i]] += dtq * g[i]
+
+
+@njit(cache=True)
 def _edge_holonomy(t, tc, length, g, Hh, want_hessian):
     """Per edge: dOmega/de (3) and d2Omega/de2 (3x3) of the holonomy spin Omega.
 
@@ -315,13 +373,13 @@ def _edge_holonomy(t, tc, length, g, Hh, want_hessian):
     for k in range(t.shape[0]):
         t0, t1, t2 = t[k, 0], t[k, 1], t[k, 2]
         c0, c1, c2 = tc[k, 0], tc[k, 1], tc[k, 2]
-        c = c0 * t0 + c1 * t1 + c2 * t2
-        w0, w1, w2 = cross3(c0, c1, c2, t0, t1, t2)
         le = length[k]
-        gt0, gt1, gt2 = -w0 / (1.0 + c), -w1 / (1.0 + c), -w2 / (1.0 + c)
-        g[k, 0], g[k, 1], g[k, 2] = gt0 / le, gt1 / le, gt2 / le
+        g0, g1, g2, c = _connection(t0, t1, t2, c0, c1, c2, le)
+        g[k, 0], g[k, 1], g[k, 2] = g0, g1, g2
         if not want_hessian:
             continue
+        w0, w1, w2 = cross3(c0, c1, c2, t0, t1, t2)
+        gt0, gt1, gt2 = g0 * le, g1 * le, g2 * le
         s = 1.0 / (2.0 * (1.0 + c) ** 2)
         il2 = 1.0 / (le * le)
         for i in range(3):

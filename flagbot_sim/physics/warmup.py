@@ -91,6 +91,7 @@ def _dispatchers():
     from . import effects, elastic, frames, linsolve, stepper
     return [frames.unit_rows, frames._trial_frames, frames.twist_for_director, elastic._stretch,
             elastic._bend_twist, elastic._hinge_strains, elastic._stretch_energy, elastic._bend_twist_energy,
+            elastic.tangent_torque,
             effects.rft_kernel(), linsolve._arrow_factor, linsolve._arrow_solve, stepper._predict_cylindrical]
 
 
