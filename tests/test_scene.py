@@ -71,11 +71,15 @@ def test_the_clamp_turns_at_most_a_quarter_turn_per_step():
     # at half a turn per step the clamped arm's tangent reverses (the frame transport divides by zero); at a
     # whole turn the imposed motion aliases to none
     assert load_scene("clamped_flagellum", ["motor.omega_rpm=-1500"]).omega_T < 0
+    # a step turns the drive by at most time.max_turn (faster drives are sub-stepped): refused only where that
+    # bound itself allows more than a quarter turn
     for rpm, dt in ((3000, 0.01), (6000, 0.01), (-1600, 0.01), (100, 2.0)):
         with pytest.raises(SceneError, match="motor.omega_rpm") as exc:
-            load_scene("clamped_flagellum", [f"motor.omega_rpm={rpm}", f"time.dt={dt}"])
-        assert "deg per step of time.dt" in str(exc.value)
-    assert load_scene("clamped_flagellum", ["motor.omega_rpm=3000", "time.dt=0.004"]).time.dt == 0.004
+            load_scene("clamped_flagellum", [f"motor.omega_rpm={rpm}", f"time.dt={dt}", "time.max_turn=3.0"])
+        assert "deg per step of time.dt" in str(exc.value) and "time.max_turn" in str(exc.value)
+        assert load_scene("clamped_flagellum", [f"motor.omega_rpm={rpm}", f"time.dt={dt}"]).time.max_turn <= 0.5
+    assert load_scene("clamped_flagellum", ["motor.omega_rpm=3000", "time.dt=0.004",
+                                            "time.max_turn=3.0"]).time.dt == 0.004
 
 
 def test_clamp_cannot_be_combined_with_head_effects_or_several_flagella():
@@ -101,8 +105,12 @@ def test_unknown_section_and_file_errors(tmp_path):
 
 
 def test_presets_set_the_discretisation_and_explicit_values_win():
-    assert load_scene("design1", ["scene.preset='fast'"]).time.dt == 2e-2
+    fast = load_scene("design1", ["scene.preset='fast'"])
+    assert (fast.time.integrator, fast.time.rtol, fast.flagellum.edge_length) == ("bdf2", 1e-2, 8.22e-3)
     acc = load_scene("design2", ["scene.preset='accurate'"])
-    assert (acc.time.dt, acc.flagellum.edge_length) == (5e-3, 2.055e-3)
-    assert load_scene("design1").time.dt == 1e-2 and load_scene("design1").flagellum.edge_length == 4.11e-3
+    assert (acc.time.rtol, acc.flagellum.edge_length) == (1e-3, 2.055e-3)
+    d = load_scene("design1")
+    assert (d.time.integrator, d.time.dt, d.time.rtol, d.flagellum.edge_length) == ("bdf2", 1e-2, 0.0, 4.11e-3)
+    paper = load_scene("design1", ["scene.preset='paper'"])
+    assert (paper.time.integrator, paper.time.dt, paper.flagellum.edge_length) == ("implicit_euler", 1e-2, 4.11e-3)
     assert load_scene("design1", ["scene.preset='fast'", "time.dt=0.05"]).time.dt == 0.05
