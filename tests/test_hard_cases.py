@@ -155,14 +155,14 @@ def test_very_stiff_flagellum_next_to_rigid_parts(integrator):
     assert ra["reductions"] < 0.05 * ra["steps"]
 
 
-@pytest.mark.parametrize("integrator,minutes", [("bdf2", 10), ("implicit_euler", 3)])
+@pytest.mark.parametrize("integrator,minutes", [("bdf2", 10), ("implicit_euler", 2)])
 def test_ten_simulated_minutes_without_drift(integrator, minutes):
-    """Design 1 at 150 rpm for 600 s with the default integrator (180 s with implicit Euler, which has run 600 s
-    before it was the default): the steady omega_h, omega_t and v do not drift."""
+    """Design 1 at 150 rpm for 600 s with the default integrator (120 s with implicit Euler, which ran 600 s here
+    while it was the default): the steady omega_h, omega_t and v do not drift."""
     sim = Simulation(load_scene("design1", ["motor.omega_rpm=150", f"time.integrator='{integrator}'"]))
     windows = {}
     el = sim.model.elastic
-    checks = (60.0, 30.0 * minutes, 60.0 * minutes)
+    checks = (60.0, max(90.0, 30.0 * minutes), 60.0 * minutes)
     for t_check in checks:
         while sim.time < t_check - 1e-9:
             sim.step()
