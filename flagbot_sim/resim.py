@@ -127,7 +127,13 @@ def recorded_scene(meta, path):
         raise ResimulationError(f"{path}: no flagbot_sim metadata with the scene: not recorded by sim_node's "
                                 "`record` parameter or `record --params-from /sim_node`")
     try:
-        scene = scene_from_dict(tomllib.loads(meta.scene_toml))
+        data = tomllib.loads(meta.scene_toml)
+        # a resolved scene (sim_node's recorder writes every section) without time.integrator was recorded before
+        # that key existed, when implicit Euler was the only integrator (the default is BDF2 since)
+        resolved = {"scene", "robot", "motor", "time", "flagellum", "medium", "head", "plate", "numerics", "observe"}
+        if resolved <= set(data) and isinstance(data["time"], dict) and "integrator" not in data["time"]:
+            data["time"]["integrator"] = "implicit_euler"
+        scene = scene_from_dict(data)
         # a standalone recorder stores the scene file as written: apply the node's overrides (idempotent on the
         # resolved scene that sim_node's own recorder stores)
         extra = node_overrides(meta.parameters.get("n_flagella", 0), meta.parameters.get("scene_overrides", []))

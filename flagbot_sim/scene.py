@@ -96,12 +96,20 @@ def _f(default, unit="", doc="", **bounds):
 
 
 #: Accuracy presets: discretisation values applied on top of the scene file, under explicit overrides. Their
-#: measured error (largest relative error of the steady outputs) and speed are in docs/accuracy.md: fast
-#: <= 3.2%, default (the paper's discretisation) <= 1.5%, accurate <= 0.72% over the five study cases.
+#: measured error and wall time are in docs/accuracy.md (`flagbot bench accuracy --parts presets`): over 0.5-100
+#: rpm (clamped flagellum of both designs, vs the rod BVP) and on the free robot (vs the converged steady
+#: solution), 'fast' (BDF2, error-controlled, 8.22 mm edges) <= 2%, 'default' (nothing added: the scene file
+#: and the TimeSection defaults, BDF2 at the scene's dt = 1e-2 s, 4.11 mm edges) <= 1%, 'accurate' (BDF2,
+#: rtol 1e-3, 2.06 mm edges) <= 0.2%; 'paper' is the paper's own numerics (implicit Euler, dt = 1e-2 s,
+#: 4.11 mm edges: up to 2.4%). The error-controlled presets take at most 0.1 s per step, so that a live run
+#: (sim_node) still advances smoothly.
 PRESETS: dict[str, dict[str, Any]] = {
-    "fast": {"time.dt": 2.0e-2, "flagellum.edge_length": 8.22e-3},
+    "fast": {"time.integrator": "bdf2", "time.rtol": 1.0e-2, "time.dt": 0.1, "flagellum.edge_length": 8.22e-3},
     "default": {},
-    "accurate": {"time.dt": 5.0e-3, "flagellum.edge_length": 2.055e-3},
+    "accurate": {"time.integrator": "bdf2", "time.rtol": 1.0e-3, "time.dt": 0.1,
+                 "flagellum.edge_length": 2.055e-3},
+    "paper": {"time.integrator": "implicit_euler", "time.rtol": 0.0, "time.dt": 1.0e-2,
+              "flagellum.edge_length": 4.11e-3},
 }
 
 
@@ -131,13 +139,14 @@ class TimeSection:
     dt: float = _f(1.0e-2, "s", "time step (with time.rtol > 0: the first and the largest step)", ge=1.0e-6,
                    le=10.0)
     duration: float = _f(20.0, "s", "simulated time of a CLI run", gt=0.0, le=1.0e7)
-    integrator: str = _f("implicit_euler", "", "time integrator: 'implicit_euler' (first order, the paper's) or "
-                                               "'bdf2' (second order, L-stable)",
+    integrator: str = _f("bdf2", "", "time integrator: 'bdf2' (second order, L-stable) or 'implicit_euler' "
+                                     "(first order, the paper's; scene.preset = 'paper' sets it)",
                          choices=("implicit_euler", "bdf2"))
-    rtol: float = _f(0.0, "", "error control: relative local error per step (0 = fixed steps of time.dt)",
+    rtol: float = _f(0.0, "", "error control: tolerated relative error of the velocities a step takes, calibrated "
+                              "so that the steady outputs stay within it (0 = fixed steps of time.dt)",
                      ge=0.0, lt=1.0)
-    atol: float = _f(1.0e-9, "m", "error control: absolute floor of the local error (twist angles: divided by "
-                                  "the edge length)", gt=0.0, le=1.0)
+    atol: float = _f(1.0e-9, "m", "error control: absolute floor of the step's error (twist angles count times the "
+                                  "edge length)", gt=0.0, le=1.0)
     max_turn: float = _f(0.5, "rad", "largest angle the motor (or clamp) turns in one step: smaller steps are "
                                      "taken at high speed, so no speed aliases (at most a quarter turn: the "
                                      "clamp's plate arm must not reverse within a step)", gt=0.0, le=0.5 * math.pi)

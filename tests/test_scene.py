@@ -105,8 +105,12 @@ def test_unknown_section_and_file_errors(tmp_path):
 
 
 def test_presets_set_the_discretisation_and_explicit_values_win():
-    assert load_scene("design1", ["scene.preset='fast'"]).time.dt == 2e-2
+    fast = load_scene("design1", ["scene.preset='fast'"])
+    assert (fast.time.integrator, fast.time.rtol, fast.flagellum.edge_length) == ("bdf2", 1e-2, 8.22e-3)
     acc = load_scene("design2", ["scene.preset='accurate'"])
-    assert (acc.time.dt, acc.flagellum.edge_length) == (5e-3, 2.055e-3)
-    assert load_scene("design1").time.dt == 1e-2 and load_scene("design1").flagellum.edge_length == 4.11e-3
+    assert (acc.time.rtol, acc.flagellum.edge_length) == (1e-3, 2.055e-3)
+    d = load_scene("design1")
+    assert (d.time.integrator, d.time.dt, d.time.rtol, d.flagellum.edge_length) == ("bdf2", 1e-2, 0.0, 4.11e-3)
+    paper = load_scene("design1", ["scene.preset='paper'"])
+    assert (paper.time.integrator, paper.time.dt, paper.flagellum.edge_length) == ("implicit_euler", 1e-2, 4.11e-3)
     assert load_scene("design1", ["scene.preset='fast'", "time.dt=0.05"]).time.dt == 0.05

@@ -7,11 +7,16 @@ Registration imports nothing heavy: the simulator is loaded only when a benchmar
 
 
 def accuracy_arguments(ap) -> None:
-    ap.add_argument("--cases", default="clamped,design1_n2,design1_n3,design2_n2,design2_n3",
-                    help="comma-separated, from clamped, design1_n2, design1_n3, design2_n2, design2_n3")
-    ap.add_argument("--quick", action="store_true", help="a 3 x 2 grid instead of 6 x 4 (minutes, not an hour)")
-    ap.add_argument("--out", default="out/accuracy", help="directory for the CSVs, PNG and markdown")
-    ap.add_argument("--no-bvp", action="store_true", help="skip the rod-BVP reference of the clamped case")
+    ap.add_argument("--parts", default="front,calibration,presets",
+                    help="comma-separated, from front (error vs wall time, implicit Euler and BDF2), calibration "
+                         "(requested rtol vs achieved error, 0.5-2000 rpm), presets (each accuracy preset)")
+    ap.add_argument("--cases", default="clamped1,clamped2,design1_n2,design1_n3,design2_n2,design2_n3",
+                    help="the front's cases, from clamped1, clamped2 (each design's clamped flagellum), design1_n2, "
+                         "design1_n3, design2_n2, design2_n3 (the free robot); all at 100 rpm")
+    ap.add_argument("--quick", action="store_true", help="3 time steps x 1 edge length, two tolerances, fewer "
+                                                         "speeds (a few minutes, not an hour)")
+    ap.add_argument("--repeat", type=int, default=3, help="presets: timed runs per point (median wall time)")
+    ap.add_argument("--out", default="out/accuracy", help="directory for the CSV, PNGs, markdown and references")
 
 
 def speed_arguments(ap) -> None:
