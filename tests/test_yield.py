@@ -103,13 +103,15 @@ def test_not_listed_builds_nothing_and_zero_yield_force_is_the_free_robot(thrust
     assert v == pytest.approx(v_free, rel=1e-9)
 
 
-def test_time_stepped_robot_agrees_with_the_steady_states(thrust_and_free_speed):
-    """The time stepper (implicit Euler, Newton) with the yield: put below the threshold, the steady speed
-    above it (to the paper's dt's own error of ~2%)."""
+@pytest.mark.parametrize("integrator", ["implicit_euler", "bdf2"])
+def test_time_stepped_robot_agrees_with_the_steady_states(thrust_and_free_speed, integrator):
+    """The time stepper with the yield: put below the threshold, the steady speed above it (to the paper's dt's
+    own error of ~2%)."""
     T, v_free, eps = thrust_and_free_speed
     F_y = float(np.interp(60.0, RPMS, T))
     for rpm in (40.0, 100.0):
-        sc = load_scene("design2", [*SHORT, YIELD, f"medium.yield_force={F_y}", f"motor.omega_rpm={rpm}"])
+        sc = load_scene("design2", [*SHORT, YIELD, f"medium.yield_force={F_y}", f"motor.omega_rpm={rpm}",
+                                    f"time.integrator='{integrator}'"])
         sim = Simulation(sc)
         sim.run(8.0)
         out = sim.summary()
@@ -118,7 +120,10 @@ def test_time_stepped_robot_agrees_with_the_steady_states(thrust_and_free_speed)
             assert abs(out["v"]) < 3 * eps and abs(v_steady) < 3 * eps
         else:
             assert out["v"] == pytest.approx(v_steady, rel=3e-2) and v_steady > 0.3 * v_free[RPMS.index(100)]
-        assert out["dt_reductions"] == 0 and out["newton_iterations"] <= 3 * out["steps"]
+        # BDF2 halves one step 8 times where the head breaks away (t = 0.03 s: the regularised Coulomb law turns
+        # from stick to slip over v_eps = 1e-7 m/s, and its second-order history overshoots); none after it
+        allowed = 0 if integrator == "implicit_euler" or rpm < 60 else 10
+        assert out["dt_reductions"] <= allowed and out["newton_iterations"] <= 3 * out["steps"]
 
 
 def test_yield_force_and_head_drag_fitted_from_data_with_zero_speed_rows(tmp_path, thrust_and_free_speed):
