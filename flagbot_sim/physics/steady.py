@@ -194,7 +194,6 @@ class SteadySolver:
         self._pattern = _BorderedPattern(model.pattern, N, net.n_edges, self._head, self._tail, self.fixed,
                                          self.gauge, bordered=not self.clamped)
         self._ex = np.eye(3)[0]
-        self._inertia = True          # the centripetal load (False: the overdamped problem, for stability)
         self._dv_dU = np.zeros(model.ndof)
         self._dv_dU[0: 3 * N: 3] = 1.0
 
@@ -222,9 +221,8 @@ class SteadySolver:
         wn[:, 2] = x[:, 1]
         vn[:] = omega_t * wn
         vn[:, 0] = U
-        if self._inertia:
-            an[:, 1:] = -(omega_t * omega_t) * x[:, 1:]  # -Omega^2 (0, y, z)
-            dan[:, 1:] = -2.0 * omega_t * x[:, 1:]
+        an[:, 1:] = -(omega_t * omega_t) * x[:, 1:]      # -Omega^2 (0, y, z)
+        dan[:, 1:] = -2.0 * omega_t * x[:, 1:]
         tx = frames_t[:, 0]                              # e_x . t of every edge
         v[3 * N:] = Om_e * tx
         dv_dw[3 * N:] = tx
@@ -253,13 +251,9 @@ class SteadySolver:
         r[self.fixed] = 0.0
         return r, fr, v
 
-    def system(self, q, committed: EdgeFrames, omega_T, omega_t, U, inertia: bool = True):
-        """Residual and Jacobian of the bordered system in the unknowns (q, omega_t, U) (free robot) or q.
-
-        ``inertia=False`` leaves out the centripetal load's derivatives (for the overdamped stability analysis,
-        which must then leave out the Coriolis and relative accelerations too)."""
+    def system(self, q, committed: EdgeFrames, omega_T, omega_t, U):
+        """Residual and Jacobian of the bordered system in the unknowns (q, omega_t, U) (free robot) or q."""
         model = self.model
-        inertia = inertia and self._inertia
         fr = model.elastic.trial_frames(q, committed)
         v, a, dv_dw, da_dw, dv_dU = self.fields(q, fr.t, omega_T, omega_t, U)
         ctx = self._context(q, fr, v, a, 0.0, 0.0)
@@ -267,10 +261,8 @@ class SteadySolver:
         E00 = model.jacobian(ctx, springs=False)                     # the effects' part of J00
         ctx.dv_dq, ctx.da_dq = 1.0, 0.0
         Kv = model.jacobian(ctx, springs=False) - E00                # dR/dv
-        Ka = None
-        if inertia:
-            ctx.dv_dq, ctx.da_dq = 0.0, 1.0
-            Ka = model.jacobian(ctx, springs=False) - E00            # dR/da
+        ctx.dv_dq, ctx.da_dq = 0.0, 1.0
+        Ka = model.jacobian(ctx, springs=False) - E00                # dR/da
         dv_vals, da_vals = self._velocity_derivatives(fr, omega_T, omega_t)
         r[self.fixed] = 0.0
         A = self._pattern.assemble(J00, Kv, Ka, dv_vals, da_vals, dv_dw, da_dw, dv_dU)
@@ -415,51 +407,78 @@ class SteadySolver:
                               wall_seconds=time.perf_counter() - t0)
 
     def linearization(self, sol: SteadySolution):
-        """(A, M, omega_t) of the overdamped linearisation A dz + M d(dz)/dt = 0 about ``sol`` (see
-        :meth:`stability`); z = (q, omega_t, U) for the free robot, q for the clamped flagellum."""
+        """(A, D, Mm, omega_t) of the linearised dynamics A dz + D dz' + Mm dz'' = 0 about ``sol``, in the frame
+        that follows its rigid motion; z = (q, omega_t, U) for the free robot, q for the clamped flagellum.
+
+        With v = V(q) + z' and a = A_r(q) + C z' + z'' (the rigid-motion field V, its centripetal acceleration
+        A_r, and C the Coriolis term 2 Omega e_x x on the nodes and the twist rates' d(Omega_e e_x.t)/dx x' on
+        the edges): A is the steady Jacobian, D = dR/dv + dR/da C on the DOFs (with the border columns' rates:
+        a turning rate or speed that changes accelerates every node), and Mm = dR/da, the masses."""
         model = self.model
         q, fr = sol.q, sol.frames
         omega_t, U = sol.omega_t, -sol.v
-        if "inertia" in model.effect_names:
-            self._inertia = False
-            try:
-                q_g = q[self.gauge]
-                q, omega_t, U, _, _, fr_t = self.newton(q.copy(), fr, sol.omega_T, omega_t, U, q_g)
-                fr = EdgeFrames.of(fr_t)
-            finally:
-                self._inertia = True
-        _, A, _ = self.system(q, fr, sol.omega_T, omega_t, U, inertia=False)
-        v, a, *_ = self.fields(q, fr.t, sol.omega_T, omega_t, U)
-        ctx = self._context(q, model.elastic.trial_frames(q, fr), v, a, 0.0, 0.0)
+        ndof = model.ndof
+        _, A, _ = self.system(q, fr, sol.omega_T, omega_t, U)
+        tf = model.elastic.trial_frames(q, fr)
+        v, a, dv_dw, _, dv_dU = self.fields(q, tf.t, sol.omega_T, omega_t, U)
+        ctx = self._context(q, tf, v, a, 0.0, 0.0)
         E00 = model.jacobian(ctx, springs=False)
         ctx.dv_dq = 1.0
-        Kv = model.pattern.matrix(model.jacobian(ctx, springs=False) - E00).tocoo()
-        keep = ~self._is_fixed[Kv.row]
+        Kv = model.pattern.matrix(model.jacobian(ctx, springs=False) - E00)
+        ctx.dv_dq, ctx.da_dq = 0.0, 1.0
+        Ka = model.pattern.matrix(model.jacobian(ctx, springs=False) - E00)
+        dv_vals, _ = self._velocity_derivatives(tf, sol.omega_T, omega_t)
+        pat = self._pattern
+        coriolis = dv_vals.copy()
+        coriolis[: 2 * self.N] *= 2.0                 # the node entries: 2 Omega e_x x; the edges' as they are
+        C = sp.csc_matrix((coriolis, (pat.dv_rows, pat.dv_cols)), shape=(ndof, ndof))
         n = A.shape[0]
-        M = sp.csc_matrix((Kv.data[keep], (Kv.row[keep], Kv.col[keep])), shape=(n, n))
-        return A, M, omega_t
+
+        def bordered(K, extra_cols=()):
+            K = K.tocoo()
+            keep = ~self._is_fixed[K.row]
+            rows, cols, vals = [K.row[keep]], [K.col[keep]], [K.data[keep]]
+            for j, col in extra_cols:
+                col = np.where(self._is_fixed, 0.0, col)
+                nz = np.nonzero(col)[0]
+                rows.append(nz)
+                cols.append(np.full(len(nz), j))
+                vals.append(col[nz])
+            out = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+            out.eliminate_zeros()              # the pattern's unused slots (no inertia effect: Mm = 0)
+            return out
+
+        border = () if self.clamped else ((ndof, Ka @ dv_dw), (ndof + 1, Ka @ dv_dU))
+        D = bordered(Kv + Ka @ C, border)
+        Mm = bordered(Ka)
+        return A, D, Mm, omega_t
 
     def stability(self, sol: SteadySolution, k: int = 12) -> Stability:
-        """Growth rates of small perturbations of the equilibrium, in the frame that follows its rigid motion.
+        """Growth rates mu of small perturbations of the equilibrium, in the frame that follows its rigid motion.
 
-        Inertia is negligible at this Reynolds number (rho A omega / eta_p ~ 1e-5), so perturbations obey the
-        overdamped linearisation  A dz + M d(dz)/dt = 0, where A is the bordered steady Jacobian (the gauge fixes
-        translation along and rotation about the axis; omega_t and U adjust instantly, as force and torque balance
-        demand) and M is dR/dv on the DOFs (the medium's damping). It is taken about the overdamped problem's own
-        equilibrium (a few Newton iterations from ``sol`` with the centripetal load left out): linearising the
-        overdamped operator about the equilibrium with inertia is inconsistent at O(inertia), enough to tip the
-        neutral modes. The slowest modes, mu closest to 0, are the largest eigenvalues nu = 1/mu of -A^-1 M,
-        found by ARPACK with A factorised once, as many as it takes to reach the neutral modes' |mu| = omega_t (so
-        every mode slower than the turning itself is examined; the tests compare with the whole spectrum of
-        dense solves). Stable when every mu found has a negative real part, apart from
-        the neutral modes of the symmetry: a sideways shift and a tilt of the whole robot (it swims the same
-        along any axis, from any point) appear in the turning frame as oscillations at exactly +-i omega_t."""
-        A, M, omega_t = self.linearization(sol)
+        The linearised dynamics A dz + D dz' + Mm dz'' = 0 (:meth:`linearization`: the bordered steady Jacobian,
+        the medium's damping with the Coriolis terms, the masses; the gauge fixes translation along and rotation
+        about the axis, and omega_t and U follow the force and torque balance) have solutions z e^(mu t). As a
+        first-order pencil in y = (z, mu z), the modes nearest mu = 0 are the largest eigenvalues nu = 1/mu of
+        y -> (A^-1 (-D z - Mm w), z), found by ARPACK with A factorised once, as many as it takes to reach the
+        neutral modes' |mu| = omega_t (so every mode slower than the turning itself is examined; the tests
+        compare with the whole spectrum of dense solves). Stable when every mu found has a negative real part,
+        apart from the neutral modes of the symmetry: a sideways shift and a tilt of the whole robot (it swims
+        the same along any axis, from any point) appear in the turning frame as oscillations at exactly
+        +-i omega_t. Inertia is included: the centripetal load reaches the drag at ~1800 rpm for design 2's
+        flagellum, where the overdamped picture calls a folding equilibrium stable."""
+        A, D, Mm, omega_t = self.linearization(sol)
         n = A.shape[0]
         lu = spla.splu(A, permc_spec="COLAMD")
-        op = spla.LinearOperator((n, n), matvec=lambda z: -lu.solve(M @ z), dtype=float)
+        if Mm.nnz:
+            def matvec(y):
+                z, w = y[:n], y[n:]
+                return np.concatenate([-lu.solve(D @ z + Mm @ w), z])
+            op = spla.LinearOperator((2 * n, 2 * n), matvec=matvec, dtype=float)
+        else:
+            op = spla.LinearOperator((n, n), matvec=lambda z: -lu.solve(D @ z), dtype=float)
         scale = max(abs(omega_t), 1e-12)
-        k = min(k, n - 2)
+        k = min(k, op.shape[0] - 2)
         while True:
             try:
                 nu = spla.eigs(op, k=k, which="LM", return_eigenvectors=False, tol=1e-10, maxiter=5000)
@@ -474,9 +493,9 @@ class SteadySolver:
             neutral = (np.abs(mu.real) <= NEUTRAL_RTOL * scale) & \
                       (np.abs(np.abs(mu.imag) - abs(omega_t)) <= NEUTRAL_RTOL * scale)
             # every mode with |mu| below the neutral ones' omega_t is examined: more modes until they are found
-            if neutral.sum() >= 4 or k >= min(MAX_MODES, n - 2):
+            if neutral.sum() >= 4 or k >= min(MAX_MODES, op.shape[0] - 2):
                 break
-            k = min(2 * k, MAX_MODES, n - 2)
+            k = min(2 * k, MAX_MODES, op.shape[0] - 2)
         rest = mu[~neutral]
         rate = float(rest[0].real) if len(rest) else 0.0
         return Stability(stable=rate < 0.0, rate=rate, rates=[complex(m) for m in mu], neutral=int(neutral.sum()))
