@@ -98,6 +98,10 @@ def motor_samples(js: list) -> tuple[list, np.ndarray, np.ndarray, np.ndarray] |
             np.array([m.velocity[k] for m in samples]))
 
 
+#: how far (s) an inferred switch time may fall outside the samples around it: the stamps' nanosecond rounding
+STAMP_SLACK = 1e-8
+
+
 def command_schedule(t: np.ndarray, angle: np.ndarray, rate: np.ndarray, dt: float | None
                      ) -> tuple[list, list]:
     """[(t_switch, omega)] from the motor joint samples (the first entry starts at t[0]); switch times rounded to
@@ -114,7 +118,8 @@ def command_schedule(t: np.ndarray, angle: np.ndarray, rate: np.ndarray, dt: flo
             n = round(ts / dt)
             off_step = abs(ts / dt - n) > 1e-3
             ts = n * dt
-        if off_step or not (t[k] - 1e-9 <= ts <= t[k + 1] + 1e-9):
+        # (stamps are whole nanoseconds: a switch at a sample's own step is found within a few ns of it)
+        if off_step or not (t[k] - STAMP_SLACK <= ts <= t[k + 1] + STAMP_SLACK):
             notes.append(f"between t = {t[k]:.4f} s and {t[k + 1]:.4f} s the command changed more than once "
                          f"(or off a step); its switch time is taken as {ts:.4f} s")
         schedule.append((float(ts), float(wb)))
