@@ -17,6 +17,17 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
                    help="override a scene value, e.g. --set robot.n_flagella=3 --set motor.omega_rpm=150")
 
 
+def finite_float(text: str, where: str, error: type[Exception] = ValueError) -> float:
+    """``text`` as a finite float, else ``error("WHERE: 'TEXT' is not a number" / "... is not finite")``."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise error(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(x):
+        raise error(f"{where}: {text!r} is not finite")
+    return x
+
+
 def json_default(o):
     """numpy arrays and scalars as plain JSON values (for ``json.dumps(default=...)``)."""
     if hasattr(o, "tolist"):

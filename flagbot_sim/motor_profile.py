@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .cliutil import finite_float
 from .scene import RPM
 
 
@@ -47,13 +48,7 @@ class Profile:
 
 
 def _num(text: str, what: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise ProfileError(f"{what}: {text!r} is not a number") from None
-    if not math.isfinite(v):
-        raise ProfileError(f"{what}: {text!r} is not finite")
-    return v
+    return finite_float(text, what, ProfileError)
 
 
 def _dur(text: str, what: str) -> float:

@@ -22,7 +22,8 @@ so PyElastica's usual clamp (node 0 and element 0 fixed) keeps the first element
 elastic flagellum by about half an element, a first-order error (5.5% on |z| at 27 elements, 2.6% at 54). The
 "centre" clamp puts element 0's centre on the clamp (the rod starts half an element behind it, that ghost half
 gets no drag), which is second order and is PyElastica's best setting here; the "node" clamp is run for the
-record. Our DER: implicit Euler + Newton, dt 1e-2 / 2e-2 s, edges 4.11 / 8.22 mm.
+record. Our DER: BDF2 (the default) and implicit Euler (the paper's) + Newton, dt 1e-2 / 2e-2 s, edges 4.11 /
+8.22 mm.
 
     python benchmarks/pyelastica_compare.py            # full comparison (~30 s on this machine)
     python benchmarks/pyelastica_compare.py --quick    # one setting per code (~7 s)
@@ -116,9 +117,12 @@ class Tracker:
         return res
 
 
-def scene_for(rpm: float, edge: float = 4.11e-3, dt: float = 1e-2):
+INTEGRATOR_NAMES = {"bdf2": "BDF2", "implicit_euler": "implicit Euler"}
+
+
+def scene_for(rpm: float, edge: float = 4.11e-3, dt: float = 1e-2, integrator: str = "bdf2"):
     return load_scene("clamped_flagellum", [f"motor.omega_rpm={rpm}", f"flagellum.edge_length={edge}",
-                                            f"time.dt={dt}"])
+                                            f"time.dt={dt}", f"time.integrator='{integrator}'"])
 
 
 def reference(rpm: float) -> Reference:
@@ -131,13 +135,14 @@ def reference(rpm: float) -> Reference:
 
 # ------------------------------------------------------------------------------------------------ our DER
 def run_der(rpm: float, edge: float, dt: float, ref: Reference, tol: float, confirm: float, max_time: float,
-            sample: float) -> RunResult:
+            sample: float, integrator: str = "bdf2") -> RunResult:
     from ..physics import Simulation
 
-    sc = scene_for(rpm, edge, dt)
+    sc = scene_for(rpm, edge, dt, integrator)
     sim = Simulation(sc)
     n_el = len(sim.model.net.flagella_edges[0])
-    res = RunResult("DER (flagbot_sim)", f"edge {edge * 1e3:.3g} mm, dt {dt:g} s, implicit Euler", dt, n_el)
+    res = RunResult("DER (flagbot_sim)", f"edge {edge * 1e3:.3g} mm, dt {dt:g} s, {INTEGRATOR_NAMES[integrator]}",
+                    dt, n_el)
     tr = Tracker(ref, tol, confirm)
     per = max(1, int(round(sample / dt)))
     try:
@@ -448,8 +453,8 @@ def compare(rpm=10.0, tol=0.01, confirm=5.0, max_time=40.0, sample=0.1, der_sett
     w0 = time.perf_counter()
     warm_der()
     log(f"DER warm-up (JIT): {time.perf_counter() - w0:.2f} s")
-    for edge, dt in der_settings:
-        r = run_der(rpm, edge, dt, ref, tol, confirm, max_time, sample)
+    for integrator, (edge, dt) in ((i, s) for i in INTEGRATOR_NAMES for s in der_settings):
+        r = run_der(rpm, edge, dt, ref, tol, confirm, max_time, sample, integrator)
         rows.append(r)
         log(f"  DER {r.settings}: " + (f"within {100 * tol:g}% from t = {r.t_steady:.2f} s, wall "
                                        f"{r.wall_steady:.3f} s" if r.reached else r.note))

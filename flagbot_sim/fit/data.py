@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..cliutil import finite_float
 from ..scene import RPM, SECTIONS, Scene, SceneError, _split_key
 
 #: output columns that can be fitted, with their units
@@ -91,13 +92,7 @@ def _number(text: str, where: str) -> float | None:
     text = text.strip()
     if text == "" or text.lower() in ("nan", "none", "null"):
         return None
-    try:
-        x = float(text)
-    except ValueError:
-        raise DataError(f"{where}: {text!r} is not a number") from None
-    if not math.isfinite(x):
-        raise DataError(f"{where}: {text!r} is not finite")
-    return x
+    return finite_float(text, where, DataError)
 
 
 def read_data(path: str | Path, base: Scene, exclude: tuple[str, ...] = ()) -> Dataset:
