@@ -125,6 +125,9 @@ INTEGRATORS = {cls.name: cls for cls in (ImplicitEuler, BDF2)}
 CHORD_CONTRACTION = 0.25
 #: ... and used further only while the contraction it shows would reach the tolerance in this many more corrections
 CHORD_MAX_MORE = 2.0
+#: a converged iterate reached with a kept factorisation gets one more correction unless its residual is below
+#: this fraction of the tolerance
+CHORD_DEEPEN = 0.1
 #: a factorisation made for dv/dq = 1/h ... serves steps whose coefficient differs by less than this (relative)
 REUSE_DV_CHANGE = 0.15
 
@@ -489,6 +492,17 @@ class Stepper:
             if not math.isfinite(rn):
                 return None
             if rn <= self.tol:
+                if chord and rn > CHORD_DEEPEN * self.tol:
+                    # one more correction with the kept factorisation (a residual and a solve, no Jacobian): the
+                    # next step's predictor extrapolates this iterate, and one just inside the tolerance makes
+                    # the next correction start too close to it to contract (then a fresh Jacobian is paid)
+                    q_try = q - self._rotated_solve(r, q)
+                    ctx_try = model.context(q_try, state, plan)
+                    r_try = model.residual(ctx_try)
+                    r_try[fixed] = 0.0
+                    if self._norm(r_try) < rn:
+                        ctx = ctx_try
+                    it += 1
                 return self._accept(state, plan, ctx, stats, it)
             if it == self.max_iterations:
                 return None
@@ -500,11 +514,14 @@ class Stepper:
                 r_try = model.residual(ctx_try)
                 r_try[fixed] = 0.0
                 m = float(np.linalg.norm(r_try * self._scale))
-                if np.all(np.isfinite(dq)) and math.isfinite(m) and m <= CHORD_CONTRACTION * merit0:
+                m_max = self._norm(r_try)
+                # a correction that reaches the tolerance is taken whatever its contraction (a residual already
+                # near the tolerance cannot shrink 4x above round-off: BDF2's predictor often starts there)
+                if np.all(np.isfinite(dq)) and math.isfinite(m) and (m <= CHORD_CONTRACTION * merit0 or
+                                                                     m_max <= self.tol):
                     q, r, ctx = q_try, r_try, ctx_try
                     # keep going with it only while it would reach the tolerance within a couple of corrections
                     # (each costs a residual and a solve; a fresh Jacobian about three of them)
-                    m_max = self._norm(r_try)
                     rho = m / merit0
                     chord = m_max <= self.tol or (rho > 0.0 and
                                                   math.log(self.tol / m_max) / math.log(rho) <= CHORD_MAX_MORE)
