@@ -127,7 +127,7 @@ CHORD_CONTRACTION = 0.25
 CHORD_MAX_MORE = 2.0
 #: a converged iterate reached with a kept factorisation gets one more correction unless its residual is below
 #: this fraction of the tolerance
-CHORD_DEEPEN = 0.1
+CHORD_DEEPEN = 0.5
 #: a factorisation made for dv/dq = 1/h ... serves steps whose coefficient differs by less than this (relative)
 REUSE_DV_CHANGE = 0.15
 
