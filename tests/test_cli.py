@@ -19,7 +19,10 @@ def test_run_json_reports_the_documented_keys():
     # start-up (process start to simulation ready) is part of the process's wall time, not of the stepping's
     assert 0.0 < out["startup_seconds"] < process_wall
     assert out["steps"] == 30 and out["omega_T"] == pytest.approx(100 * 2 * 3.141592653589793 / 60)
-    assert p.stderr == ""            # no progress bar in JSON mode
+    # no progress bar in JSON mode: stderr holds at most the one-line compile notice of a cold kernel cache
+    # (a fresh clone's first run, as in CI), which tells the user why this run is slow
+    lines = [ln for ln in p.stderr.splitlines() if not ln.startswith("flagbot_sim: compiling kernels")]
+    assert lines == [] and "\r" not in p.stderr
 
 
 def test_clamped_run_reports_force_torque_and_tip():
