@@ -17,11 +17,8 @@ import os
 import sys
 import time
 
-from .cliutil import add_scene_arguments, dumps
+from .cliutil import add_scene_arguments, dumps, process_age
 from .scene import RPM, SceneError, TimeSection, load_scene
-
-#: when this module was imported: the fallback origin of ``startup_seconds`` where /proc is not available
-_IMPORTED = time.perf_counter()
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -50,21 +47,6 @@ COMMAND_MODULES = list(dict.fromkeys(module for module, _ in COMMANDS.values()))
 
 #: longest error message printed (a refused 1e6-element array must not be echoed back)
 MAX_ERROR_CHARS = 600
-
-
-def process_age() -> float:
-    """Seconds since this process started (Linux: from /proc, so interpreter start-up and the ROS wheels'
-    re-exec of the interpreter are included; elsewhere: since this module was imported)."""
-    try:
-        with open("/proc/self/stat", "rb") as f:
-            # the command name (field 2) may hold spaces and parentheses: split after the last ')'
-            fields = f.read().rsplit(b")", 1)[1].split()
-        start_ticks = int(fields[19])                       # field 22, starttime, in clock ticks since boot
-        with open("/proc/uptime", "rb") as f:
-            uptime = float(f.read().split()[0])
-        return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
-    except (OSError, ValueError, IndexError):
-        return time.perf_counter() - _IMPORTED
 
 
 def _finite(value, spec: str, missing: str = "--") -> str:
@@ -100,9 +82,11 @@ def cmd_run(args) -> int:
                                f"w_t {_finite(ob.rate_t, '+.3f')} rad/s  v {_finite(1e3 * ob.speed, '+.3f')} mm/s")
 
     error = None
+    paced0 = time.perf_counter()
     try:
         if view is not None:
-            view.start(sim)
+            view.start(sim)              # (waits for a client first with --view-wait)
+            paced0 = time.perf_counter()
         sim.run(duration, callback=progress)
     except StepFailed as exc:
         error = str(exc)
@@ -114,6 +98,11 @@ def cmd_run(args) -> int:
     bar.close()
     out = sim.summary()
     out.setdefault("startup_seconds", startup)
+    if view is not None:
+        # the stepping's own wall time and real-time factor stay as they are; the view's pacing is apart
+        paced = time.perf_counter() - paced0
+        out["paced_wall_seconds"] = paced
+        out["paced_real_time_factor"] = sim.time / paced if paced > 0 else None
     if error:
         out["error"] = error
     if args.json:
@@ -151,6 +140,9 @@ def format_summary(scene, out: dict) -> str:
     timing = f"{g('wall_seconds', '.2f')} s wall, real-time factor {g('real_time_factor', '.2f')}"
     if out.get("startup_seconds") is not None:
         timing += f", start-up {g('startup_seconds', '.2f')} s"
+    if out.get("paced_wall_seconds") is not None:
+        timing += (f"; paced for the live view: {g('paced_wall_seconds', '.2f')} s wall, real-time factor "
+                   f"{g('paced_real_time_factor', '.2f')}")
     lines.append(f"  {out['steps']} steps, {out['newton_iterations']} Newton iterations, "
                  f"{out['dt_reductions']} dt reductions, {timing}")
     if "error" in out:

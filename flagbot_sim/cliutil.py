@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import time
 from typing import Any
 
 
@@ -53,3 +55,22 @@ def finite_or_none(obj: Any) -> Any:
 def dumps(obj: Any, **kwargs) -> str:
     """Strict JSON (RFC 8259): numpy values converted, NaN/Inf written as null, never as bare NaN/Infinity."""
     return json.dumps(finite_or_none(obj), default=json_default, allow_nan=False, **kwargs)
+
+
+#: when this module was imported: the fallback origin of ``startup_seconds`` where /proc is not available
+_IMPORTED = time.perf_counter()
+
+
+def process_age() -> float:
+    """Seconds since this process started (Linux: from /proc, so interpreter start-up and the ROS wheels'
+    re-exec of the interpreter are included; elsewhere: since this module was imported)."""
+    try:
+        with open("/proc/self/stat", "rb") as f:
+            # the command name (field 2) may hold spaces and parentheses: split after the last ')'
+            fields = f.read().rsplit(b")", 1)[1].split()
+        start_ticks = int(fields[19])                       # field 22, starttime, in clock ticks since boot
+        with open("/proc/uptime", "rb") as f:
+            uptime = float(f.read().split()[0])
+        return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return time.perf_counter() - _IMPORTED

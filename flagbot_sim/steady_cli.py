@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import sys
 
-from .cliutil import add_scene_arguments, dumps
+from .cliutil import add_scene_arguments, dumps, process_age
 from .scene import RPM, SceneError, load_scene
 
 
@@ -43,6 +43,7 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
     compile_seconds = warmup.ensure_compiled()
     model = RobotModel(scene)
     solver = SteadySolver(model)
+    startup = process_age()            # process start to solver ready, as run --json's startup_seconds
     out, prev = [], None
     for rpm in (omega_rpm if omega_rpm is not None else [scene.motor.omega_rpm]):
         w = rpm * RPM
@@ -58,6 +59,7 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
             st = solver.stability(sol)
             row["stability"] = st.to_dict()
         row["compile_seconds"] = compile_seconds
+        row["startup_seconds"] = startup
         compile_seconds = 0.0
         out.append(row)
         prev = sol
@@ -83,7 +85,9 @@ def format_row(scene, row: dict) -> str:
     st = row.get("stability")
     if st is not None:
         tc = st["slowest_time_constant"]
-        lines.append("  stable: perturbations decay" + (f" (slowest time constant {tc:.3g} s)" if tc else "")
+        lines.append(("  stable: perturbations decay" + (f" (slowest time constant {tc:.3g} s)" if tc else "")
+                      if st["slowest_rate"] < 0 else
+                      "  stable (marginally): the slowest mode neither grows nor decays (an undamped oscillation)")
                      if st["stable"] else
                      f"  UNSTABLE: a perturbation grows at {st['slowest_rate']:.3g} 1/s (a real robot does not "
                      "stay in this state)")

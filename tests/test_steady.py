@@ -11,7 +11,7 @@ import pytest
 
 from flagbot_sim.physics import Simulation
 from flagbot_sim.physics.model import RobotModel
-from flagbot_sim.physics.steady import SteadyFailed, SteadySolver, summary
+from flagbot_sim.physics.steady import SHIFT_FLOOR, SteadyFailed, SteadySolver, summary
 from flagbot_sim.scene import load_scene
 
 from cli_helpers import flagbot
@@ -195,3 +195,51 @@ def test_stability_finds_the_slowest_mode_of_the_whole_spectrum(scene, overrides
                         (np.abs(np.abs(inside.imag) - omega_t) < 1e-4 * omega_t))]
         assert st.rate == pytest.approx(rest.real.max(), rel=1e-6)
 
+
+
+@pytest.mark.parametrize("scene", ["design1", "design2"])
+def test_a_robot_at_rest_is_stable_with_the_slow_speed_limit_of_its_modes(scene):
+    """At omega_T = 0 the shift and tilt modes sit at mu = 0 itself and the steady Jacobian is singular (before:
+    a spurious 'grows at 300 1/s'); the modes are then sought about a small negative shift. Nothing grows, the
+    four neutral modes are found, and the slowest decay equals its limit from slowly turning robots, where the
+    unshifted analysis works."""
+    sc = load_scene(scene, ["flagellum.length=0.05"])
+    S = SteadySolver(RobotModel(sc))
+    at_rest = S.stability(S.solve(0.0))
+    slow_sol = S.solve(1.0)
+    assert slow_sol.omega_t > 2 * SHIFT_FLOOR                # no shift there
+    slow = S.stability(slow_sol)
+    assert at_rest.stable and at_rest.neutral == 4 and slow.neutral == 4
+    assert at_rest.rate < 0 and at_rest.rate == pytest.approx(slow.rate, rel=1e-3)
+
+
+def test_an_undamped_twist_oscillation_is_marginal_not_unstable():
+    """The clamped flagellum at rest: its twist carries no drag, so its twist modes oscillate undamped (mu on the
+    imaginary axis up to round-off, which can put the real part at +1e-12). That is reported as marginally
+    stable (rate 0), not as a growing perturbation."""
+    sc = load_scene("clamped_flagellum", ["flagellum.length=0.05", "motor.omega_rpm=0"])
+    S = SteadySolver(RobotModel(sc))
+    st = S.stability(S.solve(0.0))
+    mu = np.array(st.rates)
+    assert np.any((np.abs(mu.real) <= 1e-8 * np.abs(mu)) & (np.abs(mu.imag) > 1.0))
+    assert st.stable and st.rate == 0.0
+
+
+def test_flagbot_steady_as_users_run_it():
+    """`flagbot steady --json` in its own process: every field of `flagbot run --json` for the same scene (one
+    schema for both), plus the residual and the stability, in strict JSON; where no equilibrium exists, one
+    clear line naming the speed it reached, exit status 1, no traceback."""
+    over = ["--set", "flagellum.length=0.05"]
+    p = flagbot("steady", "design2", *over, "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout, parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))
+    r = flagbot("run", "design2", *over, "--duration", "0.05", "--json")
+    assert r.returncode == 0, r.stderr
+    missing = set(json.loads(r.stdout)) - set(out)
+    assert not missing, missing
+    assert out["steps"] == 0 and out["time"] is None and out["residual"] < 1e-7 and out["stability"]["stable"]
+    assert 0 < out["startup_seconds"] < 60
+    bad = flagbot("steady", "design2", "--set", "robot.n_flagella=5", "--set", "flagellum.youngs_modulus=1e4",
+                  "--omega-rpm", "10000", "--no-stability")
+    assert bad.returncode == 1 and "Traceback" not in bad.stderr + bad.stdout
+    assert "NO EQUILIBRIUM" in bad.stdout and "stalled at omega_T" in bad.stdout

@@ -13,10 +13,15 @@ from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, efficiency
 from .stepper import Stepper, StepStats
 
 
+#: with error control the steady-state rule's tolerance is at most this fraction of time.rtol
+STEADY_PER_RTOL = 0.1
+
+
 class Simulation:
     def __init__(self, scene, steady_window: float | None = None, steady_rtol: float | None = None):
         """``steady_window`` / ``steady_rtol``: the steady-state rule's window (s) and tolerance (default: the
-        scene's ``observe`` section)."""
+        scene's ``observe`` section; with error control, ``time.rtol`` > 0, at most time.rtol / 10, so that a run
+        called steady has settled well inside the accuracy it asked for)."""
         #: time spent compiling (first run) or loading the kernels in this process: not simulation time
         self.compile_seconds = warmup.ensure_compiled()
         self.scene = scene
@@ -27,7 +32,11 @@ class Simulation:
         self.state = self.initial.copy()
         ob = scene.observe
         self.observer = Observer(self.model, self.state, steady_window or ob.steady_window)
-        self.steady_detector = SteadyDetector(steady_window or ob.steady_window, steady_rtol or ob.steady_rtol)
+        if steady_rtol is None:
+            steady_rtol = ob.steady_rtol
+            if scene.time.rtol > 0.0:
+                steady_rtol = min(steady_rtol, STEADY_PER_RTOL * scene.time.rtol)
+        self.steady_detector = SteadyDetector(steady_window or ob.steady_window, steady_rtol)
         self.last_stats = StepStats(dt_min=self.dt)
         self._prev_state = None
         self._zero_counters()
@@ -218,6 +227,7 @@ class Simulation:
             "v": ss["v"],
             "steady": ss["steady"],
             "steady_change": det.change,
+            "steady_rtol": det.rtol,
             "window": ss["window"],
             "time": self.state.t,
             "steps": self.steps,
@@ -226,7 +236,7 @@ class Simulation:
             "wall_seconds": self.wall_seconds,
             "real_time_factor": self.state.t / self.wall_seconds if self.wall_seconds > 0 else None,
             "compile_seconds": self.compile_seconds,
-            "kernels": "python" if _jit_disabled() else "compiled",
+            "kernels": warmup.kernels_mode(),
         }
         if self.scene.clamped:
             F, T = self.medium_force_on_flagella()
@@ -236,8 +246,3 @@ class Simulation:
             torque = self.motor_torque()
         out.update(efficiency(torque, self.omega_T, out["v"], float(self.model.net.node_mass.sum())))
         return out
-
-
-def _jit_disabled() -> bool:
-    from numba.core import config
-    return bool(config.DISABLE_JIT)

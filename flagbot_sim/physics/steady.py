@@ -37,6 +37,7 @@ from .effects import StepContext
 from .frames import EdgeFrames
 from .model import RobotModel, State
 from .observe import efficiency
+from .warmup import kernels_mode
 
 
 #: a mode is the symmetry's neutral one when mu = +-i omega_t to this relative tolerance (round-off splits the
@@ -44,6 +45,12 @@ from .observe import efficiency
 NEUTRAL_RTOL = 1e-4
 #: the stability analysis examines at most this many modes (those of smallest |mu|)
 MAX_MODES = 192
+#: 1/s: below this omega_t the neutral modes at +-i omega_t come so close to mu = 0 that the steady Jacobian is
+#: (at rest: exactly) singular; the modes are then sought about the shift mu = -SHIFT_FLOOR instead of 0
+SHIFT_FLOOR = 1e-2
+#: a mode grows when its real part exceeds this fraction of its |mu|: an undamped oscillation (the flagella's
+#: twist carries no drag, so at rest its modes are purely imaginary) is marginal, not a round-off instability
+GROWTH_RTOL = 1e-8
 
 
 class SteadyFailed(RuntimeError):
@@ -469,15 +476,20 @@ class SteadySolver:
         flagellum, where the overdamped picture calls a folding equilibrium stable."""
         A, D, Mm, omega_t = self.linearization(sol)
         n = A.shape[0]
-        lu = spla.splu(A, permc_spec="COLAMD")
+        # shift-invert about sigma (mu = sigma + 1/theta): 0, unless the neutral modes at +-i omega_t are so
+        # near 0 (a robot nearly or wholly at rest) that A itself is singular
+        sigma = 0.0 if self.clamped or abs(omega_t) >= SHIFT_FLOOR else -SHIFT_FLOOR
+        P = A if sigma == 0.0 else (A + sigma * D + sigma ** 2 * Mm).tocsc()
+        lu = spla.splu(P, permc_spec="COLAMD")
         if Mm.nnz:
             def matvec(y):
                 z, w = y[:n], y[n:]
-                return np.concatenate([-lu.solve(D @ z + Mm @ w), z])
+                x = lu.solve(D @ z + Mm @ (w + sigma * z))
+                return np.concatenate([-x, z - sigma * x])
             op = spla.LinearOperator((2 * n, 2 * n), matvec=matvec, dtype=float)
         else:
             op = spla.LinearOperator((n, n), matvec=lambda z: -lu.solve(D @ z), dtype=float)
-        scale = max(abs(omega_t), 1e-12)
+        scale = max(abs(omega_t), SHIFT_FLOOR if sigma else 1e-12)
         k = min(k, op.shape[0] - 2)
         while True:
             try:
@@ -485,7 +497,7 @@ class SteadySolver:
             except spla.ArpackNoConvergence as exc:      # the converged ones are still eigenvalues
                 nu = exc.eigenvalues
             nu = nu[np.abs(nu) > 1e-300]
-            mu = 1.0 / nu
+            mu = sigma + 1.0 / nu
             mu = mu[np.argsort(-mu.real)]
             if self.clamped:
                 neutral = np.zeros(len(mu), bool)
@@ -498,7 +510,11 @@ class SteadySolver:
             k = min(2 * k, MAX_MODES, op.shape[0] - 2)
         rest = mu[~neutral]
         rate = float(rest[0].real) if len(rest) else 0.0
-        return Stability(stable=rate < 0.0, rate=rate, rates=[complex(m) for m in mu], neutral=int(neutral.sum()))
+        growing = rest.real > GROWTH_RTOL * np.abs(rest)
+        if not growing.any() and np.any(rest.real >= -GROWTH_RTOL * np.abs(rest)):
+            rate = 0.0            # the slowest mode neither grows nor decays (to round-off): marginal
+        return Stability(stable=not growing.any(), rate=rate, rates=[complex(m) for m in mu],
+                         neutral=int(neutral.sum()))
 
     def _set_clamp(self, q, committed):
         """Put the clamped DOFs at the clamp's configuration at drive angle 0."""
@@ -533,7 +549,10 @@ def summary(model: RobotModel, sol: SteadySolution) -> dict:
     out = {"scene": sc.scene.name, "n_flagella": sc.robot.n_flagella, "omega_T": sol.omega_T,
            "omega_h": sol.omega_h if not sc.clamped else 0.0, "omega_t": sol.omega_t, "v": sol.v, "steady": True,
            "method": "steady", "residual": sol.residual, "newton_iterations": sol.iterations,
-           "continuation": list(sol.continuation), "wall_seconds": sol.wall_seconds}
+           "continuation": list(sol.continuation), "wall_seconds": sol.wall_seconds,
+           # run --json's time-stepping fields, for one schema: no steps, no simulated time, no window
+           "steady_change": None, "steady_rtol": None, "window": None, "time": None, "steps": 0,
+           "dt_reductions": 0, "real_time_factor": None, "kernels": kernels_mode()}
     if sc.clamped:
         F, T = medium_force(model, sol)
         N = model.net.n_nodes

@@ -29,6 +29,12 @@ _DONE = False
 SPRINGS, SOLVER = "springs", "solver"
 
 
+def kernels_mode() -> str:
+    """'compiled', or 'python' under numba's debugging switch NUMBA_DISABLE_JIT=1."""
+    from numba.core import config
+    return "python" if config.DISABLE_JIT else "compiled"
+
+
 def _tiny_scene(overrides: list[str]):
     from ..scene import load_scene
     return load_scene("design1", ["flagellum.length=0.02", "flagellum.edge_length=0.005", *overrides])
