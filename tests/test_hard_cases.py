@@ -190,3 +190,25 @@ def test_5000_rpm_without_aliasing(integrator):
     assert max(sim.last_stats.substep_dts) * sim.omega_T <= sim.scene.time.max_turn * (1 + 1e-9)
     ss = steady(sim)                       # omega_h + omega_t = +omega_T: not the aliased -1000 rpm
     assert ss["omega_t"] > 0.5 * sim.omega_T and ss["omega_h"] > 0 and ss["v"] > 0
+
+
+def test_a_degenerate_trial_configuration_is_rejected_not_raised():
+    """A Newton trial may put two nodes on top of each other (an extremely soft, long flagellum at 500 rpm did,
+    and the steady solver died with a ZeroDivisionError from the frames kernel). Such a trial has no frames: the
+    frames come back NaN and so does the residual, which the line searches and step control reject like any
+    non-finite trial."""
+    from flagbot_sim.physics.steady import SteadySolver
+    sim = Simulation(load_scene("design1", ["flagellum.length=0.03"]))
+    model, st = sim.model, sim.state
+    q = st.q.copy()
+    x = q[: 3 * model.net.n_nodes].reshape(-1, 3)
+    a, b = model.net.edges[-1]
+    x[b] = x[a]                                          # the last edge has zero length
+    fr = model.elastic.trial_frames(q, st.frames)
+    assert np.isnan(fr.t).any() and np.isnan(fr.length).any()
+    plan = sim.stepper.integrator.plan(st, sim.dt, 0.0)
+    r = model.residual(model.context(q, st, plan))
+    assert r.shape == (model.ndof,) and not np.isfinite(r).all()
+    S = SteadySolver(model)
+    res, _, _ = S.residual(q, st.frames, 1.0, 0.5, 0.0)
+    assert not np.isfinite(res).all()

@@ -185,8 +185,14 @@ def trial_frames(x: np.ndarray, edges: np.ndarray, hinge_edges: np.ndarray, sign
     ne, nh = edges.shape[0], hinge_edges.shape[0]
     t, length = np.empty((ne, 3)), np.empty(ne)
     d1, d2, rt = np.empty((ne, 3)), np.empty((ne, 3)), np.empty(nh)
-    _trial_frames(x, edges, committed.d1, committed.t, hinge_edges, sign, committed.ref_twist, t, length, d1, d2,
-                  rt)
+    try:
+        _trial_frames(x, edges, committed.d1, committed.t, hinge_edges, sign, committed.ref_twist, t, length, d1,
+                      d2, rt)
+    except ZeroDivisionError:
+        # a trial iterate with an edge of zero length or a frame transported onto its tangent has no frames: NaN
+        # frames give a non-finite residual, which every solver rejects (a line-search cut, a smaller step)
+        for a in (t, length, d1, d2, rt):
+            a.fill(np.nan)
     return TrialFrames(t=t, length=length, d1=d1, d2=d2, ref_twist=rt, t_committed=committed.t)
 
 

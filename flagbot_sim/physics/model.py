@@ -126,10 +126,15 @@ class RobotModel:
                            frames=self.elastic.trial_frames(q, state.frames))
 
     def residual(self, ctx: StepContext) -> np.ndarray:
+        """The residual at the context's trial configuration; all NaN where a formula divides by an exact zero
+        there (e.g. two edges folded exactly onto each other): the solvers reject non-finite trials."""
         r = np.zeros(self.ndof)
-        for eff in self.effects:
-            eff.add_force(ctx, r)
-        self.elastic.accumulate(ctx.q, ctx.frames, r, None, self.twist_hinge, ctx.drive_angle)
+        try:
+            for eff in self.effects:
+                eff.add_force(ctx, r)
+            self.elastic.accumulate(ctx.q, ctx.frames, r, None, self.twist_hinge, ctx.drive_angle)
+        except ZeroDivisionError:
+            r.fill(np.nan)
         return r
 
     def jacobian(self, ctx: StepContext, springs: bool = True) -> np.ndarray:
