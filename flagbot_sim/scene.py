@@ -204,7 +204,8 @@ class NumericsSection:
 @dataclass(frozen=True)
 class ObserveSection:
     steady_window: float = _f(2.0, "s", "window over which steady-state rates are averaged", gt=0.0, le=1.0e6)
-    steady_rtol: float = _f(1.0e-3, "", "relative change between windows counted as steady", gt=0.0, le=1.0)
+    steady_rtol: float = _f(1.0e-3, "", "relative change between windows counted as steady (with time.rtol > 0: "
+                                        "at most time.rtol / 10)", gt=0.0, le=1.0)
 
 
 @dataclass(frozen=True)

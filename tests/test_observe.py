@@ -65,3 +65,19 @@ def test_clamped_flagellum_at_half_an_rpm_is_steady_only_near_its_final_forces()
     final = sim.summary()
     for k in ("Fx", "Tx"):
         assert at_steady[k] == pytest.approx(final[k], rel=3 * sim.scene.observe.steady_rtol), k
+
+
+def test_error_controlled_runs_call_steady_only_well_inside_their_tolerance():
+    """With time.rtol set, the steady-state rule is at most time.rtol / 10: the clamped flagellum at 100 rpm with
+    rtol 1e-4 is still 6e-4 per window from settled after 20 s, which the scene's default 1e-3 called steady
+    (while Fx was 2e-4 off its final value, twice the requested accuracy). An explicit rule wins."""
+    fixed = Simulation(load_scene("clamped_flagellum", ["motor.omega_rpm=100"]))
+    assert fixed.steady_detector.rtol == fixed.scene.observe.steady_rtol == 1e-3
+    over = ["motor.omega_rpm=100", "time.rtol=1e-4", "time.dt=1.0"]
+    assert Simulation(load_scene("clamped_flagellum", over), steady_rtol=1e-3).steady_detector.rtol == 1e-3
+    sim = Simulation(load_scene("clamped_flagellum", over))
+    assert sim.steady_detector.rtol == pytest.approx(1e-5)
+    sim.run(20.0)
+    out = sim.summary()
+    assert out["steady_rtol"] == pytest.approx(1e-5) and not out["steady"]
+    assert 1e-5 < out["steady_change"] < 1e-3
