@@ -99,11 +99,12 @@ def test_default_times_span_one_flagellar_revolution_once_steady():
     assert render.revolution_times(0.0, -2.0, 4) == pytest.approx([0, math.pi / 4, math.pi / 2, 3 * math.pi / 4])
 
 
-def test_render_command_from_a_recording_draws_the_recorded_markers(tmp_path):
+def test_render_command_from_a_recording_draws_the_recorded_markers(tmp_path, capsys):
     out = tmp_path / "bag.png"
     assert cli.main(["render", str(SAMPLE), "--times", "4,6.05,15.9", "--out", str(out), "--dpi", "60"]) == 0
     with Image.open(out) as im:
         assert im.size[0] == 16 * 60
+        assert f"{im.size[0]} x {im.size[1]} px" in capsys.readouterr().out     # the size it reports is the file's
     row = recorded_row(SAMPLE, times=[4, 6.05, 15.9])
     fig = figure([row], width=16, dpi=60)
     # independently: the recorded MarkerArray at the nearest stamp, its flagellum points as recorded

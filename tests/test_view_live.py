@@ -208,6 +208,9 @@ def test_flagbot_run_view_serves_the_run_to_a_client(tmp_path):
     # paced at real time and capped at 30 Hz: from the start (t = 0) to the final state, several in between
     assert ts[0] == 0.0 and ts[-1] == pytest.approx(summary["time"]) and ts == sorted(ts) and len(ts) >= 4
     assert all(np.isfinite(list(s.values())).all() for s in states)
+    # the pacing is reported apart from the stepping's own speed: 0.3 s simulated took at least 0.3 s of wall
+    assert summary["paced_wall_seconds"] >= 0.3 and summary["paced_real_time_factor"] <= 1.0 + 1e-6
+    assert summary["wall_seconds"] < summary["paced_wall_seconds"]
 
 
 def test_without_the_extra_flagbot_run_view_says_so_in_one_line(tmp_path):

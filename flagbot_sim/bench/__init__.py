@@ -14,7 +14,7 @@ def accuracy_arguments(ap) -> None:
                     help="the front's cases, from clamped1, clamped2 (each design's clamped flagellum), design1_n2, "
                          "design1_n3, design2_n2, design2_n3 (the free robot); all at 100 rpm")
     ap.add_argument("--quick", action="store_true", help="3 time steps x 1 edge length, two tolerances, fewer "
-                                                         "speeds (a few minutes, not an hour)")
+                                                         "speeds (about a minute; the whole study ~12 min)")
     ap.add_argument("--repeat", type=int, default=3, help="presets: timed runs per point (median wall time)")
     ap.add_argument("--out", default="out/accuracy", help="directory for the CSV, PNGs, markdown and references")
 

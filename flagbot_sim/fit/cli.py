@@ -149,7 +149,10 @@ def format_fit(res: dict, pred: dict | None) -> str:
     lines += ["", f"  chi^2 = {_g(res['chi2'], '.4g')} over {res['dof']} degrees of freedom (s = {_g(s, '.3g')}"
                   f"{', stds taken as exact' if res['absolute_sigma'] else ''}); condition number of the weighted "
                   f"Jacobian {_g(res['condition_number'], '.3g')}; {res['status']}"]
-    lines += ["", _row_lines("residuals (simulated - measured; r = difference / std)", res["rows"], res["outputs"])]
+    all_std = all(r[o]["std_given"] for r in res["rows"] for o in res["outputs"] if o in r)
+    r_text = ("r = difference / std" if all_std else
+              "r = difference / std, or / the output's RMS where no *_std column is given: a weight, not a z-score")
+    lines += ["", _row_lines(f"residuals (simulated - measured; {r_text})", res["rows"], res["outputs"])]
     if pred is not None:
         lines += ["", _row_lines(f"prediction of {pred['data']} with the fitted scene", pred["rows"],
                                  [o for o in ("v", "omega_h") if o in pred["summary"]], r_needs_std=True)]

@@ -457,13 +457,26 @@ def build_rows(args, log=None) -> tuple[list[Row], str]:
     return rows, "; ".join(titles) + ": " + when
 
 
+def _saved_size(path, fig, dpi) -> tuple[int, int]:
+    """Pixel size of the image as written (a PNG's header says; matplotlib rounds the inches x dpi down)."""
+    import struct
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(24)
+        if head[:8] == b"\x89PNG\r\n\x1a\n":
+            return struct.unpack(">II", head[16:24])
+    except OSError:
+        pass
+    return int(fig.get_size_inches()[0] * dpi), int(fig.get_size_inches()[1] * dpi)
+
+
 def cmd_render(args) -> int:
     try:
         rows, title = build_rows(args, log=lambda m: print(m, file=sys.stderr, flush=True))
         fig = figure(rows, title=args.title if args.title is not None else title, width=args.width, dpi=args.dpi)
         fig.savefig(args.out, dpi=args.dpi)
-        print(f"wrote {args.out}: {len(rows)} row(s) x {len(rows[0].snapshots)} snapshots, "
-              f"{fig.get_size_inches()[0] * args.dpi:.0f} x {fig.get_size_inches()[1] * args.dpi:.0f} px")
+        w, h = _saved_size(args.out, fig, args.dpi)
+        print(f"wrote {args.out}: {len(rows)} row(s) x {len(rows[0].snapshots)} snapshots, {w} x {h} px")
         for r in rows:
             print("  " + r.caption().replace("$", "").replace("\\omega", "omega"))
         if args.gif:
