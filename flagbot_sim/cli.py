@@ -78,8 +78,9 @@ def cmd_run(args) -> int:
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
-            bar.update(s.time, f"newton {s.last_stats.newton_iterations}  w_h {_finite(ob.rate_h, '+.3f')}  "
-                               f"w_t {_finite(ob.rate_t, '+.3f')} rad/s  v {_finite(1e3 * ob.speed, '+.3f')} mm/s")
+            bar.update(s.time, lambda: f"newton {s.last_stats.newton_iterations}  w_h {_finite(ob.rate_h, '+.3f')}  "
+                                       f"w_t {_finite(ob.rate_t, '+.3f')} rad/s  "
+                                       f"v {_finite(1e3 * ob.speed, '+.3f')} mm/s")
 
     error = None
     paced0 = time.perf_counter()
@@ -140,6 +141,8 @@ def format_summary(scene, out: dict) -> str:
     timing = f"{g('wall_seconds', '.2f')} s wall, real-time factor {g('real_time_factor', '.2f')}"
     if out.get("startup_seconds") is not None:
         timing += f", start-up {g('startup_seconds', '.2f')} s"
+        if (out.get("compile_seconds") or 0.0) >= 0.05:
+            timing += f" (compiling or loading kernels: {g('compile_seconds', '.2f')} s of it)"
     if out.get("paced_wall_seconds") is not None:
         timing += (f"; paced for the live view: {g('paced_wall_seconds', '.2f')} s wall, real-time factor "
                    f"{g('paced_real_time_factor', '.2f')}")

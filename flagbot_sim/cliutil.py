@@ -74,3 +74,19 @@ def process_age() -> float:
         return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
     except (OSError, ValueError, IndexError):
         return time.perf_counter() - _IMPORTED
+
+
+def make_out_dir(path) -> "Path":
+    """Create the output directory ``--out`` (and its parents) before any work is done; a path that is a file
+    or cannot be created is refused with a one-line reason (a SceneError), not a traceback after the work."""
+    from pathlib import Path
+
+    from .scene import SceneError
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise SceneError(f"--out {out}: exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SceneError(f"--out {out}: cannot create the directory: {exc.strerror or exc}") from None
+    return out

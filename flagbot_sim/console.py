@@ -24,9 +24,24 @@ def ros_entry(module: str, prog: str):
                 raise
             print(missing, file=sys.stderr)
             return 1
+        except ImportError as exc:
+            if not _from_ros(exc):
+                raise
+            # rclpy is there but its C libraries do not load (e.g. the wheels' library path is not set up)
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            print(f"error: {prog}: ROS 2 is installed but cannot be loaded: {first} (see the README's Install "
+                  "section: the ROS 2 wheels set their library path when Python starts)", file=sys.stderr)
+            return 1
         return mod.main()
     main.__name__ = main.__qualname__ = prog
     return main
+
+
+def _from_ros(exc: BaseException) -> bool:
+    """Whether an ImportError was raised while importing ROS 2 itself (a frame inside rclpy or rpyutils)."""
+    import traceback
+    return any(("/rclpy/" in f.filename or "/rpyutils/" in f.filename)
+               for f in traceback.extract_tb(exc.__traceback__))
 
 
 # console-script targets (setup.py entry_points): the ROS processes go through ros_entry

@@ -68,6 +68,7 @@ class ProgressBar:
         self.t0 = clock()
         self.value = 0.0
         self.extra = ""
+        self._extra_fn = None
         self._first: tuple[float, float] | None = None       # (time, value) of the first update
         self._last_draw = -math.inf
         self._drawn_value: float | None = None
@@ -113,10 +114,15 @@ class ProgressBar:
         return line
 
     # ---------------------------------------------------------------- drawing
-    def update(self, value: float, extra: str = "", force: bool = False) -> None:
+    def update(self, value: float, extra="", force: bool = False) -> None:
+        """``extra``: the text after the bar, or a function returning it, called only when the bar is drawn (a
+        caller updating every few steps then pays for formatting a few times a second, not every time)."""
         now = self.clock()
         self.value = float(value)
-        if extra:
+        if callable(extra):
+            self._extra_fn = extra
+        elif extra:
+            self._extra_fn = None
             self.extra = " ".join(str(extra).split())          # one line, whatever the caller passed
         first = self._first is None
         if first:
@@ -128,6 +134,8 @@ class ProgressBar:
         self._draw(now)
 
     def _draw(self, now: float) -> None:
+        if self._extra_fn is not None:
+            self.extra = " ".join(str(self._extra_fn()).split())
         self._last_draw = now
         self._drawn_value = self.value
         if self.tty:

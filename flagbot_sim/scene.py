@@ -632,14 +632,11 @@ def node_overrides(n_flagella: int, scene_overrides) -> list[str]:
     return extra
 
 
-def load_scene(name_or_path: str | Path, overrides: dict[str, Any] | list[str] | None = None) -> Scene:
-    """Load a built-in scene by name (``design1``) or a TOML file by path, then apply overrides.
-
-    A file that sets no key at all (empty, only comments, only empty tables) is refused: it would silently run
-    on every default.
-    """
-    path = resolve_scene_path(name_or_path)
-    data = _toml_loads(read_scene_text(path), str(path))
+def scene_from_text(text: str, path: Path) -> Scene:
+    """The scene in the TOML ``text`` of the file ``path`` (its stem names it unless it says ``scene.name``). A
+    file that sets no key at all (empty, only comments, only empty tables) is refused: it would silently run on
+    every default."""
+    data = _toml_loads(text, str(path))
     if _sets_nothing(data):
         raise SceneError(f"scene file {short(str(path))} sets no keys (it is empty, or has only comments or empty "
                          "tables), so every value would be a default; start from a built-in scene "
@@ -647,7 +644,17 @@ def load_scene(name_or_path: str | Path, overrides: dict[str, Any] | list[str] |
     scene_table = data.setdefault("scene", {})
     if isinstance(scene_table, dict):
         scene_table.setdefault("name", path.stem)
-    scene = scene_from_dict(data, source=str(path))
+    return scene_from_dict(data, source=str(path))
+
+
+def load_scene(name_or_path: str | Path, overrides: dict[str, Any] | list[str] | None = None) -> Scene:
+    """Load a built-in scene by name (``design1``) or a TOML file by path, then apply overrides.
+
+    A file that sets no key at all (empty, only comments, only empty tables) is refused: it would silently run
+    on every default.
+    """
+    path = resolve_scene_path(name_or_path)
+    scene = scene_from_text(read_scene_text(path), path)
     if overrides:
         scene = scene.with_overrides(overrides)
     return scene

@@ -461,6 +461,9 @@ def test_bag_summary_with_nothing_recoverable_exits_non_zero_with_a_message(tmp_
         assert r.stderr.startswith("error: ") and str(path) in r.stderr and why in r.stderr, r.stderr
         assert "Traceback" not in r.stderr
     assert scan(killed).messages == 0 and scan(empty).ok
+    # bag-recover says the same (it wrote an empty "valid and indexed" file and exited 0)
+    r = flagbot("bag-recover", str(killed), "-o", str(tmp_path / "out.mcap"))
+    assert r.returncode == 2 and "nothing recoverable" in r.stderr and not (tmp_path / "out.mcap").exists()
 
 
 def test_read_run_gives_what_a_resimulation_needs(tmp_path):
@@ -478,3 +481,20 @@ def test_cdr_header_stamp_is_read_without_decoding():
     assert bag.cdr_header_stamp_ns(serialize_message(m)) == stamp_ns(m)
     assert bag.has_header("sensor_msgs/msg/JointState") and not bag.has_header("visualization_msgs/msg/MarkerArray")
     assert struct.unpack_from("<i", serialize_message(m), 4)[0] == 103
+
+
+def test_recording_to_a_directory_fifo_or_device_is_refused_and_writes_nothing_beside_it(tmp_path):
+    """record:=/tmp was accepted and wrote /tmp.mcap (the missing suffix is appended); a directory, FIFO or
+    device is now refused by name, and nothing is created next to it."""
+    import os
+    from flagbot_sim.bag.writer import BagWriteError, BagWriter
+    d = tmp_path / "runs"
+    d.mkdir()
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    for target, words in ((d, "is a directory"), (fifo, "not a regular file"), ("/dev/null", "not a regular file")):
+        with pytest.raises(BagWriteError) as err:
+            BagWriter(target)
+        assert words in str(err.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe", "runs"] and not list(d.iterdir())
+    assert not os.path.exists("/dev/null.mcap")

@@ -250,3 +250,19 @@ def test_require_names_the_extra_only_when_the_extra_itself_is_missing(tmp_path,
     with pytest.raises(ModuleNotFoundError) as exc:
         optional.require("dask", "a sweep", module="flagbot_broken_extra")
     assert not isinstance(exc.value, optional.MissingExtra) and exc.value.name == "flagbot_no_such_dependency"
+
+
+def test_a_ros_install_that_cannot_load_says_so_in_one_line():
+    """rclpy present but its C libraries not loadable (here: the wheels' start-up re-exec that sets their library
+    path is skipped): the console script says so in one line and exits 1, no 35-line traceback."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    script = Path(sys.executable).with_name("sim_node")
+    env = {k: v for k, v in os.environ.items() if k != "LD_LIBRARY_PATH"}
+    env["_ROS_WHEELS_BOOTSTRAP_COMPLETE"] = "1"
+    p = subprocess.run([str(script), "--help"], env=env, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 1, p.stdout + p.stderr
+    assert "Traceback" not in p.stderr and p.stderr.count("\n") == 1
+    assert p.stderr.startswith("error: sim_node: ROS 2 is installed but cannot be loaded: ")

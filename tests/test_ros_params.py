@@ -7,7 +7,7 @@ import time
 import pytest
 
 from flagbot_sim.ros.params import MAX_SCENE_BYTES, TimeLimited, node_scene, read_scene_file
-from flagbot_sim.scene import SceneError
+from flagbot_sim.scene import SceneError, load_scene
 
 
 def test_time_limited_work_is_refused_when_it_overruns_and_blocks_nothing_after():
@@ -46,6 +46,28 @@ def test_scene_reader_refuses_fifos_directories_and_big_or_binary_files_without_
     assert read_scene_file(ok) == "[robot]\nn_flagella = 3\n"
     assert node_scene(str(ok), 0, []).robot.n_flagella == 3
     assert node_scene(str(ok), 4, ["flagellum.length=0.2"]).robot.n_flagella == 4
+
+
+def test_the_nodes_refuse_an_empty_scene_file_as_the_cli_does(tmp_path):
+    """An empty or comments-only scene file would run on every default without a word (`flagbot run` refuses it;
+    sim_node and beam_node took it): one reading, shared by load_scene and the nodes, refuses it."""
+    empty = tmp_path / "empty.toml"
+    empty.write_text("# nothing here\n\n[robot]\n")
+    with pytest.raises(SceneError) as err:
+        node_scene(str(empty), 0, [])
+    assert "sets no keys" in str(err.value)
+    with pytest.raises(SceneError):
+        load_scene(str(empty))
+
+
+def test_beam_node_refuses_the_clamped_scene_as_flagbot_beam_does():
+    """The beam balance is the free robot's: for the clamped flagellum beam_node published omega_h = omega_t =
+    v = 0 (and `flagbot beam` refused it); both now use BeamParams.for_free_robot."""
+    from flagbot_sim.beam import BeamParams
+    with pytest.raises(SceneError) as err:
+        BeamParams.for_free_robot(node_scene("clamped_flagellum", 0, []))
+    assert "clamps its flagellum" in str(err.value)
+    assert BeamParams.for_free_robot(node_scene("design1", 0, [])).n == 2
 
 
 @pytest.mark.parametrize("scene, overrides, words", [

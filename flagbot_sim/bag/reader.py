@@ -562,6 +562,8 @@ def recover(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
         raise BagError("recover needs a different output file")
     with BagReader(src) as r:
         rep = r.report
+        if rep.messages == 0 and not rep.ok:       # as bag-summary: no empty "valid" file that looks like success
+            raise BagError(f"nothing recoverable: {rep.describe_loss()}")
         with open(dst, "wb") as f:
             w = Writer(f, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.ZSTD)
             w.start(rep.profile or PROFILE, rep.library or LIBRARY)

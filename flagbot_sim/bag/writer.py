@@ -91,6 +91,11 @@ class BagWriter:
             run_record = metadata.to_record() if isinstance(metadata, RunMetadata) else dict(metadata)
         if isinstance(path, (str, os.PathLike)):
             p = Path(path)
+            if p.exists() and not p.is_file():
+                # a directory, FIFO or device: appending ".mcap" would quietly write beside it (/tmp -> /tmp.mcap)
+                kind = "a directory" if p.is_dir() else "not a regular file"
+                raise BagWriteError(f"cannot record to {p}: it is {kind}; give a file name such as {p / 'run.mcap'}"
+                                    if p.is_dir() else f"cannot record to {p}: it is {kind}")
             if p.suffix != ".mcap":
                 p = p.with_name(p.name + ".mcap")
             if p.exists() and not overwrite:

@@ -44,12 +44,7 @@ def register(subparsers) -> None:
 def cmd_beam(args) -> int:
     from ..cliutil import dumps
     scene = load_scene(args.scene, args.overrides)
-    if scene.clamped:
-        raise SceneError(f"beam: scene {scene.scene.name!r} clamps its flagellum ('clamp' in scene.effects: the "
-                         "head is held fixed), but the beam balance solves the free robot's head torque and drag "
-                         "balance for omega_h, omega_t and v_h; use a free-robot scene (design1, design2), or "
-                         "`flagbot run` for the clamped flagellum")
-    params = BeamParams.from_scene(scene)
+    params = BeamParams.for_free_robot(scene)
     rpms = parse_rpm_list(args.omega_rpm) if args.omega_rpm is not None else [scene.motor.omega_rpm]
     results = solve_balance_curve(params, [w * RPM for w in rpms], args.regime, raise_on_failure=False)
     if args.json:

@@ -36,6 +36,18 @@ class BeamParams:
                 raise ValueError(f"BeamParams.{name} must be a positive finite number, got {value!r}")
 
     @classmethod
+    def for_free_robot(cls, scene: Scene) -> "BeamParams":
+        """:meth:`from_scene`, refusing a scene whose flagellum is clamped: the balance solves the free robot's
+        head torque and drag for omega_h, omega_t and v_h, so it would print free-robot numbers (or zeros) for a
+        robot whose head is held (flagbot beam and beam_node)."""
+        if scene.clamped:
+            raise SceneError(f"beam: scene {scene.scene.name!r} clamps its flagellum ('clamp' in scene.effects: the head "
+                             "is held fixed), but the beam balance solves the free robot's head torque and drag "
+                             "balance for omega_h, omega_t and v_h; use a free-robot scene (design1, design2), or "
+                             "`flagbot run` for the clamped flagellum")
+        return cls.from_scene(scene)
+
+    @classmethod
     def from_scene(cls, scene: Scene) -> "BeamParams":
         # The balance equations divide by the head coefficients: a scene without head drag or torque (C1 or
         # C2 = 0, allowed for the DER) has no beam-theory steady state, so say which key to change.

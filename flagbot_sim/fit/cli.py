@@ -6,7 +6,7 @@ import signal
 import sys
 from pathlib import Path
 
-from ..cliutil import add_scene_arguments, dumps
+from ..cliutil import add_scene_arguments, dumps, make_out_dir
 from ..scene import RPM, load_scene
 from ..sweep.engines import ENGINES, default_workers
 from .data import _short_key
@@ -231,7 +231,7 @@ def _cmd_fit(args) -> int:
     if args.max_evaluations < 1:
         from .fit import FitError
         raise FitError(f"--max-evaluations must be at least 1, got {args.max_evaluations}")
-    out_dir = Path(args.out or f"fit-{base.scene.name}")
+    out_dir = make_out_dir(args.out or f"fit-{base.scene.name}")
     with Engine(args.engine, args.workers, args.scheduler) as engine:
         _say(args, f"fit {', '.join(p.key for p in params)} of {base.scene.name} to {len(data.rows)} rows of "
                    f"{args.data} ({sum(len(w) for w in data.weights())} values) [{engine.where}]")
@@ -245,7 +245,6 @@ def _cmd_fit(args) -> int:
         res = result.to_dict()
         fitted = result.fitted_scene()
         pred = predict(fitted, held, engine) if held is not None else None
-        out_dir.mkdir(parents=True, exist_ok=True)
         files = {"scene": str(out_dir / "fitted.toml"), "json": str(out_dir / "fit.json")}
         header = ["# fitted by flagbot fit: " + ", ".join(
             f"{e.key} = {e.value:.6g}" + (f" (95% CI {e.ci95[0]:.4g} .. {e.ci95[1]:.4g})" if e.ci95 else
@@ -327,13 +326,12 @@ def _cmd_optimize(args) -> int:
     variables = parse_vary(args.vary, base)
     if args.top < 1 or args.max_evaluations < 1:
         raise FitError("--top and --max-evaluations must be at least 1")
-    out_dir = Path(args.out or f"optimize-{base.scene.name}")
+    out_dir = make_out_dir(args.out or f"optimize-{base.scene.name}")
     with Engine(args.engine, args.workers, args.scheduler) as engine:
         _say(args, f"optimize {base.scene.name}: {', '.join(v.key for v in variables)} [{engine.where}]")
         res = run_search(base, variables, args.maximize, engine, max_power=args.max_power,
                          grid_points=args.grid_points, allow_unstable=args.allow_unstable,
                          max_evaluations=args.max_evaluations, progress=lambda t: _say(args, "  " + t))
-    out_dir.mkdir(parents=True, exist_ok=True)
     files = {"json": str(out_dir / "optimize.json")}
     if not args.no_plot:
         from .plots import figure_design

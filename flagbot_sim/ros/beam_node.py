@@ -43,7 +43,7 @@ class BeamNode(Node):
         super().__init__("beam_node")
         declare(self, PARAMS)
         p = {s.name: self.get_parameter(s.name).value for s in PARAMS}
-        self.params = BeamParams.from_scene(node_scene(p["scene"], p["n_flagella"], p["scene_overrides"]))
+        self.params = BeamParams.for_free_robot(node_scene(p["scene"], p["n_flagella"], p["scene_overrides"]))
         self.regime = p["regime"]
         self.max_omega = p["max_omega"]
         self._cache: OrderedDict = OrderedDict()
@@ -86,7 +86,7 @@ class BeamNode(Node):
             return SetParametersResult(successful=False, reason=reason)
         try:
             scene = scene_request(self, new)
-            bp = None if scene is None else BeamParams.from_scene(scene)
+            bp = None if scene is None else BeamParams.for_free_robot(scene)
         except SceneError as exc:
             return SetParametersResult(successful=False, reason=one_line(str(exc)))
         except Exception as exc:  # noqa: BLE001 - no value may kill the node: refuse what was not foreseen

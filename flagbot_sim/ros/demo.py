@@ -234,7 +234,9 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
         rclpy.spin_until_future_complete(node, future, timeout_sec=10)
         while rclpy.ok() and state["clock"] < duration + 0.2:
             rclpy.spin_once(node, timeout_sec=0.05)
-            bar.update(min(state["clock"], duration), f"omega_T = {state['cmd']:.3f} rad/s")
+            cmd = state["cmd"]
+            bar.update(min(state["clock"], duration),
+                       f"omega_T = {cmd:.3f} rad/s" if math.isfinite(cmd) else "omega_T = -- (no command yet)")
             _check_alive(procs)
             if time.monotonic() - wall0 > 60 + 20 * duration:
                 raise RuntimeError("the simulation did not advance: no /clock from sim_node")

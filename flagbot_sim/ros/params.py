@@ -10,7 +10,6 @@ import math
 import os
 import stat
 import threading
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, TypeVar
@@ -19,7 +18,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.parameter import Parameter
 
-from ..scene import Scene, SceneError, node_overrides, resolve_scene_path, scene_from_dict
+from ..scene import Scene, SceneError, node_overrides, resolve_scene_path, scene_from_text
 from .runtime import one_line
 
 MAX_STRING = 4096            # longest accepted string parameter (a path, a scene name, one override)
@@ -205,15 +204,7 @@ def node_scene(scene, n_flagella: int, scene_overrides) -> Scene:
         raise SceneError(reason)
     try:
         path = resolve_scene_path(scene)
-        text = read_scene_file(path)
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"{path}: not valid TOML: {exc}") from None
-        # as scene.load_scene does, but on text read by read_scene_file
-        if isinstance(data.get("scene", {}), dict):
-            data.setdefault("scene", {}).setdefault("name", path.stem)
-        result = scene_from_dict(data, source=str(path))
+        result = scene_from_text(read_scene_file(path), path)     # as load_scene, on text read with a limit
         extra = node_overrides(n_flagella, overrides)
         if extra:
             result = result.with_overrides(extra)

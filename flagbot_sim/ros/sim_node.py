@@ -216,7 +216,8 @@ class SimNode(Node):
         try:
             rec = Recorder(self, path, None, meta)
         except Exception as exc:  # noqa: BLE001 - OSError, BagError or anything else: refused, with the reason
-            raise Refused(f"cannot record to {path!r}: {exc}") from None
+            why = str(exc)
+            raise Refused(why if why.startswith("cannot record to") else f"cannot record to {path!r}: {why}") from None
         err = recording_error(rec)
         if err:         # opened, but writing its header already failed (a full disk): a file it cannot write
             try:

@@ -130,7 +130,12 @@ class SweepStore:
         self.points = {p.key: p for p in points}
         self.csv_path = self.dir / RESULTS
         manifest_path = self.dir / MANIFEST
-        self.dir.mkdir(parents=True, exist_ok=True)
+        if self.dir.exists() and not self.dir.is_dir():
+            raise SweepError(f"--out {self.dir}: exists and is not a directory")
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SweepError(f"--out {self.dir}: cannot create the sweep directory: {exc.strerror or exc}") from None
         if manifest_path.exists():
             stored = json.loads(manifest_path.read_text())
             old = {k: stored.get(k) for k in identity}
@@ -142,10 +147,13 @@ class SweepStore:
                 raise SweepError(f"{self.csv_path} exists but {manifest_path} does not: refusing to mix results; "
                                  "use another --out")
             tmp = manifest_path.with_suffix(".tmp")
-            tmp.write_text(dumps({**identity, **_jsonable(extra), "columns": self.columns,
-                                  "created": time.time()}, indent=1))
-            os.replace(tmp, manifest_path)
-            (self.dir / "scene.toml").write_text(scene_toml)
+            try:
+                tmp.write_text(dumps({**identity, **_jsonable(extra), "columns": self.columns,
+                                      "created": time.time()}, indent=1))
+                os.replace(tmp, manifest_path)
+                (self.dir / "scene.toml").write_text(scene_toml)
+            except OSError as exc:
+                raise SweepError(f"--out {self.dir}: cannot write the sweep's files: {exc.strerror or exc}") from None
         self.done = self._load_done()
         self._fh = None
 
