@@ -17,7 +17,7 @@ import os
 import sys
 import time
 
-from .cliutil import add_scene_arguments, dumps, process_age
+from .cliutil import add_scene_arguments, broken_pipe_exit, dumps, process_age
 from .scene import RPM, SceneError, TimeSection, load_scene
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
@@ -65,6 +65,9 @@ def cmd_run(args) -> int:
     longest = TimeSection.__dataclass_fields__["duration"].metadata["le"]
     if not (0 < duration <= longest):
         raise SceneError(f"--duration must be a positive number of seconds up to {longest:g}, got {duration!r}")
+    if scene.time.rtol == 0.0 and duration < 0.5 * scene.time.dt:
+        raise SceneError(f"--duration {duration:g} s is shorter than half a time step (time.dt = "
+                         f"{scene.time.dt:g} s): fixed-step runs take whole steps")
     sim = Simulation(scene)
     startup = process_age()
     bar = ProgressBar(duration, label=scene.scene.name, enabled=not args.json and not args.quiet)
@@ -278,6 +281,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
+    except BrokenPipeError:
+        return broken_pipe_exit()
     except SceneError as exc:
         print(f"error: {one_line(exc)}", file=sys.stderr)
         return 2

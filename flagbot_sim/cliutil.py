@@ -90,3 +90,15 @@ def make_out_dir(path) -> "Path":
     except OSError as exc:
         raise SceneError(f"--out {out}: cannot create the directory: {exc.strerror or exc}") from None
     return out
+
+
+def broken_pipe_exit() -> int:
+    """What a command does when its reader went away (``flagbot scenes | head -3``): no traceback; stdout is
+    pointed at /dev/null so that the interpreter's final flush does not raise again (Python's signal docs)."""
+    import sys
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+    return 1

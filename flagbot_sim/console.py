@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import sys
 
+from .cliutil import broken_pipe_exit
 from .optional import missing_ros
 
 
@@ -32,7 +33,10 @@ def ros_entry(module: str, prog: str):
             print(f"error: {prog}: ROS 2 is installed but cannot be loaded: {first} (see the README's Install "
                   "section: the ROS 2 wheels set their library path when Python starts)", file=sys.stderr)
             return 1
-        return mod.main()
+        try:
+            return mod.main()
+        except BrokenPipeError:                 # sim_node --help | head -3
+            return broken_pipe_exit()
     main.__name__ = main.__qualname__ = prog
     return main
 

@@ -181,3 +181,22 @@ def test_only_the_command_line_process_skips_its_final_collection():
     import gc
     from flagbot_sim.cli import main
     assert main(["scenes"]) == 0 and gc.get_freeze_count() == 0
+
+
+def test_a_reader_that_goes_away_is_no_traceback():
+    """`flagbot scenes | head -1` and `sim_node --help | head -1`: the reader closes the pipe early; the writer
+    stops quietly (it printed a BrokenPipeError traceback)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    bindir = Path(sys.executable).parent
+    for cmd in (f"'{bindir / 'flagbot'}' scenes", f"'{bindir / 'sim_node'}' --help"):
+        p = subprocess.run(f"{cmd} | head -c 10 > /dev/null", shell=True, capture_output=True, text=True,
+                           timeout=60)
+        assert "Traceback" not in p.stderr and "BrokenPipe" not in p.stderr, (cmd, p.stderr)
+
+
+def test_a_duration_shorter_than_a_step_is_refused_not_rounded_up():
+    """`--duration 1e-6` ran a whole 0.01 s step and reported time 0.01 without a word."""
+    p = flagbot("run", "design1", "--duration", "1e-6", "--json")
+    assert p.returncode == 2 and p.stdout == "" and "shorter than half a time step" in p.stderr
