@@ -207,6 +207,8 @@ def bad_cases(files) -> list:
         for label, f in [("empty", ""), ("blank", " "), ("a space", "my frame"), ("a tab", "a\tb"),
                          ("a newline", "\n"), ("a control character", "ok\x01"), ("10000 characters", "f" * 10000)]:
             one(f"{name} = {label}", name, typed(name, f))
+    one("child_frame_id = the fixed frame", "child_frame_id", typed("child_frame_id", "world"))
+    one("frame_id = the head frame", "frame_id", typed("frame_id", "head"))
     one("start_type_description_service (read-only)", "start_type_description_service", value(PT.PARAMETER_BOOL, False))
     for label, name in [("unknown", "no_such_parameter"), ("empty name", ""), ("10 kB name", "p" * 10000),
                         ("nested name", "scene.extra")]:

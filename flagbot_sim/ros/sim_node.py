@@ -98,6 +98,13 @@ def build_simulation(scene: str, n_flagella: int, scene_overrides) -> Simulation
                                   f"{type(exc).__name__}: {exc}")) from None
 
 
+def same_frames(p: dict) -> None:
+    """Refuse frame_id == child_frame_id: the odometry and the head transform would relate a frame to itself."""
+    if p["frame_id"] == p["child_frame_id"]:
+        raise Refused(f"frame_id and child_frame_id are both {p['frame_id']!r}: the head's frame must differ "
+                      "from the fixed frame")
+
+
 def recording_error(recorder) -> str:
     """The recording's write error: '' while healthy (and without a recording); set once, kept until closed."""
     return (recorder.error or "") if recorder is not None else ""
@@ -110,6 +117,7 @@ class SimNode(Node):
         p = self._params()
         try:
             self._check_values(p)
+            same_frames(p)
         except Refused as exc:
             raise ValueError(str(exc)) from None
         self.sim = build_simulation(p["scene"], p["n_flagella"], p["scene_overrides"])
@@ -342,6 +350,7 @@ class SimNode(Node):
         """
         self._check_values(new)
         after = self._params(new)
+        same_frames(after)
         sim = None
         if set(SCENE_PARAMS) & set(new):
             sim = self._builder.run(lambda: build_simulation(after["scene"], after["n_flagella"],
