@@ -113,6 +113,15 @@ def test_a_power_budget_binds_at_the_two_variable_optimum():
     assert 0.999 * 0.01 <= best["power"] <= 0.01 and best["stable"]
 
 
+def test_a_tiny_evaluation_budget_under_a_power_budget_still_refines_within_it():
+    """With --max-evaluations below what a COBYQA restart needs, the first run still happens (the restart loop
+    left its message unset: UnboundLocalError) and the refinement keeps to the cap."""
+    base = load_scene("design1", ["flagellum.length=0.05"])
+    res = run_search(base, parse_vary(["omega_rpm=20:150"], base), "v", Engine("serial"), max_power=1e-3,
+                     grid_points=3, max_evaluations=3)
+    assert res["refined"][0]["refinement_evaluations"] <= 3 and res["optimum"]["power"] <= 1e-3
+
+
 def test_unstable_or_undetermined_equilibria_are_infeasible_unless_allowed():
     """The feasibility rule: an equilibrium the robot would leave (or whose stability is unknown) is not a
     design, unless --allow-unstable; the objective's value is still reported."""

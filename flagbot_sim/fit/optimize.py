@@ -235,9 +235,9 @@ def refine(task: dict) -> dict:
         # is repeated while it still gains
         radius = 0.25 * float(np.min(box[:, 1] - box[:, 0]))
         start, best_f = u0, math.inf
-        for _ in range(1 + COBYQA_RESTARTS):
+        for attempt in range(1 + COBYQA_RESTARTS):
             left = task["max_evaluations"] - len(records)
-            if left < 2 * len(u0) + 2:
+            if attempt and left < 2 * len(u0) + 2:     # a restart needs room for its initial models
                 break
             res = minimize(f, start, method="COBYQA", bounds=Bounds(box[:, 0], box[:, 1]),
                            constraints=[NonlinearConstraint(power_margin, -np.inf, 0.0)],
