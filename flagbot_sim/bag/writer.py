@@ -91,15 +91,16 @@ class BagWriter:
             run_record = metadata.to_record() if isinstance(metadata, RunMetadata) else dict(metadata)
         if isinstance(path, (str, os.PathLike)):
             p = Path(path)
+            # a directory, FIFO or device: appending ".mcap" would quietly write beside it (/tmp -> /tmp.mcap)
+            if p.is_dir():
+                raise BagWriteError(f"cannot record to {p}: it is a directory; give a file name such as "
+                                    f"{p / 'run.mcap'}")
             if p.exists() and not p.is_file():
-                # a directory, FIFO or device: appending ".mcap" would quietly write beside it (/tmp -> /tmp.mcap)
-                kind = "a directory" if p.is_dir() else "not a regular file"
-                raise BagWriteError(f"cannot record to {p}: it is {kind}; give a file name such as {p / 'run.mcap'}"
-                                    if p.is_dir() else f"cannot record to {p}: it is {kind}")
+                raise BagWriteError(f"cannot record to {p}: it is not a regular file")
             if p.suffix != ".mcap":
                 p = p.with_name(p.name + ".mcap")
             if p.exists() and not overwrite:
-                raise BagWriteError(f"{p} exists; choose another name or allow overwriting")
+                raise BagWriteError(f"cannot record to {p}: it exists; choose another name or allow overwriting")
             if not p.parent.is_dir():
                 raise BagWriteError(f"cannot record to {p}: directory {p.parent} does not exist")
             self.path = str(p)

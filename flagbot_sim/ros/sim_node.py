@@ -216,16 +216,17 @@ class SimNode(Node):
         """A recorder on ``params["record"]`` with ``params`` (every parameter's value once the set applies) and
         ``sim``'s resolved scene (file + overrides + n_flagella) in the metadata, so the recording alone
         reproduces the run. Raises Refused with the reason if the file cannot be created or written."""
-        from ..bag import RunMetadata
+        from ..bag import BagWriteError, RunMetadata
         from .recorder import Recorder
         path = params["record"]
         params = dict(params, scene_overrides=list(params["scene_overrides"]))
         meta = RunMetadata(scene_toml=sim.scene.to_toml(), parameters=params)
         try:
             rec = Recorder(self, path, None, meta)
-        except Exception as exc:  # noqa: BLE001 - OSError, BagError or anything else: refused, with the reason
-            why = str(exc)
-            raise Refused(why if why.startswith("cannot record to") else f"cannot record to {path!r}: {why}") from None
+        except BagWriteError as exc:          # its message names the file and why
+            raise Refused(str(exc)) from None
+        except Exception as exc:  # noqa: BLE001 - a BagError or anything else: refused, with the reason
+            raise Refused(f"cannot record to {path!r}: {exc}") from None
         err = recording_error(rec)
         if err:         # opened, but writing its header already failed (a full disk): a file it cannot write
             try:
