@@ -200,3 +200,19 @@ def test_a_duration_shorter_than_a_step_is_refused_not_rounded_up():
     """`--duration 1e-6` ran a whole 0.01 s step and reported time 0.01 without a word."""
     p = flagbot("run", "design1", "--duration", "1e-6", "--json")
     assert p.returncode == 2 and p.stdout == "" and "shorter than half a time step" in p.stderr
+
+
+def test_an_out_directory_that_is_a_file_is_refused_before_any_work(tmp_path):
+    """sweep, fit and optimize ended with a FileExistsError traceback after all their work; now one line, exit 2,
+    and the file is left as it was."""
+    taken = tmp_path / "taken"
+    taken.write_text("keep me")
+    data = tmp_path / "data.csv"
+    data.write_text("n,omega_T_rpm,v\n2,100,0.0002\n2,150,0.0003\n")
+    for argv in (["sweep", "design1", "--grid", "n=2", "--out", str(taken)],
+                 ["fit", "design1", str(data), "--fit", "medium.mu", "--out", str(taken), "--quiet"],
+                 ["optimize", "design1", "--vary", "omega_rpm=20:100", "--out", str(taken)]):
+        p = flagbot(*argv)
+        assert p.returncode == 2 and "Traceback" not in p.stderr, (argv, p.stderr)
+        assert p.stderr == f"error: --out {taken}: exists and is not a directory\n", p.stderr
+    assert taken.read_text() == "keep me"

@@ -17,7 +17,7 @@ import os
 import time
 from pathlib import Path
 
-from ..cliutil import dumps
+from ..cliutil import dumps, make_out_dir
 from .grid import Point, SweepError
 
 FORMAT = "flagbot_sim sweep 2"
@@ -130,12 +130,7 @@ class SweepStore:
         self.points = {p.key: p for p in points}
         self.csv_path = self.dir / RESULTS
         manifest_path = self.dir / MANIFEST
-        if self.dir.exists() and not self.dir.is_dir():
-            raise SweepError(f"--out {self.dir}: exists and is not a directory")
-        try:
-            self.dir.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise SweepError(f"--out {self.dir}: cannot create the sweep directory: {exc.strerror or exc}") from None
+        make_out_dir(self.dir)
         if manifest_path.exists():
             stored = json.loads(manifest_path.read_text())
             old = {k: stored.get(k) for k in identity}
