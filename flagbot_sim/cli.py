@@ -17,7 +17,7 @@ import os
 import sys
 import time
 
-from .cliutil import add_scene_arguments, broken_pipe_exit, dumps, process_age
+from .cliutil import add_scene_arguments, broken_pipe_exit, dumps, finite_text, process_age
 from .scene import RPM, SceneError, TimeSection, load_scene
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
@@ -49,13 +49,6 @@ COMMAND_MODULES = list(dict.fromkeys(module for module, _ in COMMANDS.values()))
 MAX_ERROR_CHARS = 600
 
 
-def _finite(value, spec: str, missing: str = "--") -> str:
-    """``value`` formatted with ``spec``, or ``missing`` when it is None or not finite (never 'nan')."""
-    if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
-        return missing
-    return format(value, spec)
-
-
 def cmd_run(args) -> int:
     scene = load_scene(args.scene, args.overrides)          # before the simulator's imports: a refusal is quick
     from .physics import Simulation, StepFailed
@@ -81,15 +74,15 @@ def cmd_run(args) -> int:
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
-            bar.update(s.time, lambda: f"newton {s.last_stats.newton_iterations}  w_h {_finite(ob.rate_h, '+.3f')}  "
-                                       f"w_t {_finite(ob.rate_t, '+.3f')} rad/s  "
-                                       f"v {_finite(1e3 * ob.speed, '+.3f')} mm/s")
+            bar.update(s.time, lambda: f"newton {s.last_stats.newton_iterations}  w_h {finite_text(ob.rate_h, '+.3f')}  "
+                                       f"w_t {finite_text(ob.rate_t, '+.3f')} rad/s  "
+                                       f"v {finite_text(1e3 * ob.speed, '+.3f')} mm/s")
 
     error = None
-    paced0 = time.perf_counter()
+    paced0 = None                        # when the live view's pacing starts (after it waited for a client)
     try:
         if view is not None:
-            view.start(sim)              # (waits for a client first with --view-wait)
+            view.start(sim)
             paced0 = time.perf_counter()
         sim.run(duration, callback=progress)
     except StepFailed as exc:
@@ -102,7 +95,7 @@ def cmd_run(args) -> int:
     bar.close()
     out = sim.summary()
     out.setdefault("startup_seconds", startup)
-    if view is not None:
+    if paced0 is not None:
         # the stepping's own wall time and real-time factor stay as they are; the view's pacing is apart
         paced = time.perf_counter() - paced0
         out["paced_wall_seconds"] = paced
@@ -121,7 +114,7 @@ def format_summary(scene, out: dict) -> str:
     not finite print as '--', never as 'nan'."""
     def g(key, spec, scale=1.0):
         v = out.get(key)
-        return _finite(None if v is None else scale * v, spec)
+        return finite_text(None if v is None else scale * v, spec)
 
     omega_T = out["omega_T"]
     lines = [f"scene {out['scene']}  n = {out['n_flagella']}  omega_T = {g('omega_T', '.4f')} rad/s "
@@ -130,16 +123,16 @@ def format_summary(scene, out: dict) -> str:
         tip = out.get("tip") or []
         lines += [f"  Fx  (axial force on the flagellum)  = {g('Fx', '+.6e')} N",
                   f"  Tx  (torque about the axis)        = {g('Tx', '+.6e')} N m",
-                  "  tip (co-rotating frame)            = [" + ", ".join(_finite(v, "+.6f") for v in tip) + "] m"]
+                  "  tip (co-rotating frame)            = [" + ", ".join(finite_text(v, "+.6f") for v in tip) + "] m"]
     else:
         omega_h, v = out.get("omega_h"), out.get("v")
         share = 100 * omega_h / omega_T if omega_h is not None and omega_T else None
         lines += [f"  omega_h = {g('omega_h', '+.5f')} rad/s ({g('omega_h', '+.2f', 1 / RPM)} rpm, "
-                  f"{_finite(share, '.1f')}% of omega_T)",
+                  f"{finite_text(share, '.1f')}% of omega_T)",
                   f"  omega_t = {g('omega_t', '+.5f')} rad/s ({g('omega_t', '+.2f', 1 / RPM)} rpm)",
                   f"  v       = {g('v', '+.6e')} m/s ({g('v', '+.4f', 1e3)} mm/s, positive = head first)",
-                  f"  normalised: omega_T_bar = {_finite(scene.normalise_omega(omega_T), '.2f')}, "
-                  f"v_bar = {_finite(None if v is None else scene.normalise_speed(v), '.4f')}"]
+                  f"  normalised: omega_T_bar = {finite_text(scene.normalise_omega(omega_T), '.2f')}, "
+                  f"v_bar = {finite_text(None if v is None else scene.normalise_speed(v), '.4f')}"]
     lines.append(f"  steady over the last {g('window', '.2f')} s: {'yes' if out.get('steady') else 'NO (run longer)'}")
     timing = f"{g('wall_seconds', '.2f')} s wall, real-time factor {g('real_time_factor', '.2f')}"
     if out.get("startup_seconds") is not None:

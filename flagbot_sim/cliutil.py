@@ -52,6 +52,13 @@ def finite_or_none(obj: Any) -> Any:
     return obj
 
 
+def finite_text(value, spec: str, missing: str = "--") -> str:
+    """``value`` formatted with ``spec``, or ``missing`` when it is None or not finite (never 'nan')."""
+    if value is None or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return missing
+    return format(value, spec)
+
+
 def dumps(obj: Any, **kwargs) -> str:
     """Strict JSON (RFC 8259): numpy values converted, NaN/Inf written as null, never as bare NaN/Infinity."""
     return json.dumps(finite_or_none(obj), default=json_default, allow_nan=False, **kwargs)

@@ -17,6 +17,7 @@ import tempfile
 import time
 
 from ..beam import REGIMES
+from ..cliutil import finite_text
 from ..progress import ProgressBar
 from ..scene import RPM, load_scene, node_overrides
 
@@ -101,9 +102,8 @@ def format_table(rows: list[dict], scene: str, n: int, regime: str) -> str:
              f"{'omega_h/omega_T':>15s}",
              f"{'rad/s (rpm)':>14s} | {'DER':>8s} {'beam':>8s} | {'DER':>8s} {'beam':>8s} | {'DER':>8s} {'beam':>8s} | "
              f"{'DER':>7s} {'beam':>7s}"]
-    def f(x, spec):        # a value that never arrived prints as '--', not nan
-        width = int(spec.split(".")[0])
-        return format(x, spec) if math.isfinite(x) else "--".rjust(width)
+    def f(x, spec):        # a value that never arrived prints as '--', not nan, in the column's width
+        return finite_text(x, spec).rjust(int(spec.split(".")[0]))
 
     for r in rows:
         w = r["omega_T"]
@@ -193,7 +193,7 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
     samples = {"omega_h": [], "omega_t": [], "v": []}
     beam_now = {"v": math.nan, "h": math.nan, "t": math.nan}
     beam: list = []
-    state = {"clock": 0.0, "cmd": math.nan}
+    state = {"clock": 0.0, "cmd": math.nan, "beam_seen": None}
 
     def t_of(stamp):
         return stamp.sec + 1e-9 * stamp.nanosec
@@ -206,17 +206,15 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
     def on_odom(m):
         samples["v"].append((t_of(m.header.stamp), m.twist.twist.linear.x))
 
-    last_seen = [None]
-
     def on_beam(key):
         def cb(m):
             # the three topics arrive one by one, so at a change a snapshot mixes the new prediction with the old;
             # beam_node re-publishes all three at its rate, so a snapshot seen twice in a row is one prediction
             beam_now[key] = m.data
             snap = (beam_now["h"], beam_now["t"], beam_now["v"])
-            if snap == last_seen[0]:
+            if snap == state["beam_seen"]:
                 beam.append((state["clock"], state["cmd"], snap))
-            last_seen[0] = snap
+            state["beam_seen"] = snap
         return cb
 
     qos = QoSProfile(depth=50)
