@@ -194,14 +194,3 @@ def trial_frames(x: np.ndarray, edges: np.ndarray, hinge_edges: np.ndarray, sign
         for a in (t, length, d1, d2, rt):
             a.fill(np.nan)
     return TrialFrames(t=t, length=length, d1=d1, d2=d2, ref_twist=rt, t_committed=committed.t)
-
-
-@njit(cache=True)
-def material_frames(d1, d2, theta):
-    """Row-wise :func:`material3`: (m1, m2) of edges with reference frames (d1, d2) and twist angles theta."""
-    m1, m2 = np.empty_like(d1), np.empty_like(d1)
-    for k in range(d1.shape[0]):
-        (m1[k, 0], m1[k, 1], m1[k, 2],
-         m2[k, 0], m2[k, 1], m2[k, 2]) = material3(d1[k, 0], d1[k, 1], d1[k, 2], d2[k, 0], d2[k, 1], d2[k, 2],
-                                                   theta[k])
-    return m1, m2

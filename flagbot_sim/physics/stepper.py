@@ -262,8 +262,10 @@ class Stepper:
         free = np.ones(net.ndof, bool)
         free[self.fixed] = False
         self._free_nodes = free[: 3 * N].reshape(N, 3).all(axis=1)
-        self._free_twist = free[3 * N:]
-        self._atol_twist = self.atol / model.length_scale
+        # the free twist angles the norm counts: not the flagella's (see error_norm)
+        self._norm_twist = free[3 * N:].copy()
+        for edges in net.flagella_edges:
+            self._norm_twist[np.asarray(edges, int)] = False
         self._factored_dv = None          # integrator coefficient of the factorisation the solver holds
         self._factored_pose = np.eye(3)   # and the robot's pose it was made at (see _rotated_solve)
         self._rim = int(net.edges[net.plate_edges[0], 1])
@@ -378,12 +380,7 @@ class Stepper:
         (implicit Euler); the uncalibrated RMS of node-wise ratios gave 2.8 rtol."""
         net = self.model.net
         N = net.n_nodes
-        twist = getattr(self, "_norm_twist", None)
-        if twist is None:         # the free twist angles the norm counts: not the flagella's (see above)
-            twist = self._free_twist.copy()
-            for edges in net.flagella_edges:
-                twist[np.asarray(edges, int)] = False
-            self._norm_twist = twist
+        twist = self._norm_twist
         ell = self.model.length_scale
         d = q_new - q_old
         e_x, d_x = err[: 3 * N].reshape(N, 3)[self._free_nodes], d[: 3 * N].reshape(N, 3)[self._free_nodes]
@@ -528,8 +525,7 @@ class Stepper:
                     continue
                 chord = False            # too slow a contraction: a fresh Jacobian here, and Newton steps
                 stats.chord_rejections += 1
-                if fresh:                # the current factorisation is from this attempt: refactorise anyway
-                    fresh = False
+                fresh = False            # (a factorisation from this attempt is refactorised here anyway)
             if not fresh:
                 if not self._factor(ctx, plan, stats):
                     return None
