@@ -50,6 +50,22 @@ def make_tasks(base: Scene, shared: dict, rows: list[dict], stability: bool = Fa
     return tasks
 
 
+def equilibrium_outputs(model, solver, sol, stability: bool) -> dict:
+    """OUTPUTS of a solved equilibrium (NaN for a missing one), with its stability when asked: ``stable`` and
+    ``growth_rate`` (None / NaN without), and ``error`` saying so where ARPACK could not determine it."""
+    from ..physics.steady import summary
+    s = summary(model, sol)
+    res = {**{k: (NAN if s[k] is None else float(s[k])) for k in OUTPUTS}, "stable": None, "growth_rate": NAN,
+           "error": ""}
+    if stability:
+        try:
+            st = solver.stability(sol)
+            res["stable"], res["growth_rate"] = bool(st.stable), float(st.rate)
+        except Exception as exc:   # noqa: BLE001 -- ARPACK not converging: unknown, not a failed evaluation
+            res["error"] = f"stability not determined: {type(exc).__name__}: {exc}"
+    return res
+
+
 def _failed(index: int, error: str) -> dict:
     return {"index": index, **{k: NAN for k in OUTPUTS}, "stable": None, "growth_rate": NAN, "residual": NAN,
             "iterations": 0, "error": error}
@@ -62,7 +78,7 @@ def run_rows(task: dict) -> dict:
     ``error`` text and NaN values; the other rows go on."""
     from ..physics import warmup
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadyFailed, SteadySolver, summary
+    from ..physics.steady import SteadyFailed, SteadySolver
     warmup.ensure_compiled()
     w0 = time.perf_counter()
     out = []
@@ -87,17 +103,10 @@ def run_rows(task: dict) -> dict:
             out.append(_failed(row["index"], f"{type(exc).__name__}: {exc}"))
             prev = None
             continue
-        s = summary(model, sol)
-        res = {"index": row["index"], **{k: (NAN if s[k] is None else float(s[k])) for k in OUTPUTS},
-               "stable": None, "growth_rate": NAN, "residual": float(sol.residual),
-               "iterations": int(sol.iterations), "error": ""}
-        if task.get("stability"):
-            try:
-                st = solver.stability(sol)
-                res["stable"], res["growth_rate"] = bool(st.stable), float(st.rate)
-            except Exception as exc:   # noqa: BLE001 -- ARPACK not converging: unknown, not a failed row
-                res["error"] = f"stability not determined: {type(exc).__name__}: {exc}"
-        out.append(res)
+        res = equilibrium_outputs(model, solver, sol, bool(task.get("stability")))
+        error = res.pop("error")
+        out.append({"index": row["index"], **res, "residual": float(sol.residual),
+                    "iterations": int(sol.iterations), "error": error})
         prev = sol
     return {"rows": out, "wall_seconds": time.perf_counter() - w0}
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..scene import SECTIONS, Scene, SceneError, _split_key, scene_from_dict
-from .evaluate import evaluate
+from .evaluate import OUTPUTS, equilibrium_outputs, evaluate
 from .fit import FitError
 
 ALIASES = {"n": "robot.n_flagella", "L": "flagellum.length", "rpm": "motor.omega_rpm",
@@ -147,8 +147,7 @@ def score(res: dict, objective: str, max_power: float | None, allow_unstable: bo
 def _record(design: dict, res: dict, objective, max_power, allow_unstable) -> dict:
     value, ok, why = score(res, objective, max_power, allow_unstable)
     return {"design": design, "objective": value, "feasible": ok, "reason": why,
-            **{k: res[k] for k in ("v", "omega_h", "omega_t", "motor_torque", "power", "cost_of_transport",
-                                   "stable", "growth_rate")}, "error": res["error"]}
+            **{k: res[k] for k in (*OUTPUTS, "stable", "growth_rate")}, "error": res["error"]}
 
 
 #: restarts of COBYQA from its own answer (each with a tenth of the trust radius), while they still gain
@@ -162,7 +161,7 @@ def refine(task: dict) -> dict:
 
     from ..physics import warmup
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadyFailed, SteadySolver, summary
+    from ..physics.steady import SteadyFailed, SteadySolver
     warmup.ensure_compiled()
     variables = [Variable(**v) for v in task["variables"]]
     objective, max_power, allow = task["objective"], task["max_power"], task["allow_unstable"]
@@ -176,25 +175,15 @@ def refine(task: dict) -> dict:
         if key in cache:
             return cache[key]
         design = {**task["fixed"], **{v.key: v.from_u(ui) for v, ui in zip(variables, u)}}
-        res = {"error": "", "stable": None, "growth_rate": math.nan}
         try:
             scene = scene_from_dict(task["scene_data"], source=task["source"],
                                     overrides={**task["overrides"], **design})
             model = RobotModel(scene)
             solver = SteadySolver(model)
-            sol = solver.solve(scene.omega_T)
-            s = summary(model, sol)
-            res.update({k: (math.nan if s[k] is None else float(s[k])) for k in
-                        ("v", "omega_h", "omega_t", "motor_torque", "power", "cost_of_transport")})
-            try:
-                st = solver.stability(sol)
-                res["stable"], res["growth_rate"] = bool(st.stable), float(st.rate)
-            except Exception as exc:   # noqa: BLE001 -- ARPACK not converging: stability unknown
-                res["error"] = f"stability not determined: {type(exc).__name__}: {exc}"
+            res = equilibrium_outputs(model, solver, solver.solve(scene.omega_T), stability=True)
         except (SteadyFailed, SceneError) as exc:
-            res.update({k: math.nan for k in ("v", "omega_h", "omega_t", "motor_torque", "power",
-                                              "cost_of_transport")})
-            res["error"] = f"{type(exc).__name__}: {exc}"
+            res = {**{k: math.nan for k in OUTPUTS}, "stable": None, "growth_rate": math.nan,
+                   "error": f"{type(exc).__name__}: {exc}"}
         rec = _record(design, res, objective, max_power, allow)
         records.append(rec)
         cache[key] = rec
