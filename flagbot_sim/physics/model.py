@@ -95,6 +95,17 @@ class RobotModel:
         self.force_scale = scene.EI / fl.length ** 2
         self.scale = np.ones(self.ndof)
         self.scale[3 * self.net.n_nodes:] = 1.0 / self.length_scale
+        # A residual cannot be resolved below the round-off of the stiffest spring: a relative error of machine
+        # epsilon in an edge length times its stretching stiffness. Asking for less only burns iterations.
+        net = self.net
+        roundoff = 64.0 * np.finfo(float).eps * float(np.max(net.EA * np.abs(net.nodes).max()
+                                                            / net.edge_rest_length))
+        #: N: the residual norm (:meth:`residual_norm`) a Newton solve must reach, time-stepped or steady
+        self.force_tol = max(scene.numerics.force_tol * self.force_scale, roundoff)
+
+    def residual_norm(self, r: np.ndarray) -> float:
+        """The largest scaled residual entry (N; torques on twist DOFs over the edge length)."""
+        return float(np.max(np.abs(r * self.scale))) if len(r) else 0.0
 
     # ------------------------------------------------------------------ lookup
     def effect(self, name: str) -> Effect | None:

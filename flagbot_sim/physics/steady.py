@@ -176,11 +176,9 @@ class SteadySolver:
         self.clamped = model.scene.clamped
         N = net.n_nodes
         self.N = N
-        num = model.scene.numerics
-        roundoff = 64.0 * np.finfo(float).eps * float(np.max(net.EA * np.abs(net.nodes).max() / net.edge_rest_length))
-        self.tol = tol if tol is not None else max(num.force_tol * model.force_scale, roundoff)
+        self.tol = tol if tol is not None else model.force_tol
+        self._norm = model.residual_norm
         self.max_iterations = max_iterations
-        self.scale = model.scale
         # which part each node and edge turns with: the head body (x0 -> x1) at -omega_h, all else at omega_t
         self.head_node = np.zeros(N, bool)
         self.head_edge = np.zeros(net.n_edges, bool)
@@ -276,9 +274,6 @@ class SteadySolver:
         return r, A, fr
 
     # ---------------------------------------------------------------- Newton
-    def _norm(self, r: np.ndarray) -> float:
-        return float(np.max(np.abs(r * self.scale))) if len(r) else 0.0
-
     def _step_norm(self, dz: np.ndarray, omega_T: float) -> float:
         """Size of a Newton correction: positions over the edge length, angles in radians, omega_t against
         omega_T, U against the speed of a point turning at omega_T one edge length from the axis."""

@@ -243,12 +243,9 @@ class Stepper:
         self.max_turn = float(tm.max_turn)
         self.dt_max = float(tm.dt)
         num = model.scene.numerics
-        # A residual cannot be resolved below the round-off of the stiffest spring: a relative error of machine
-        # epsilon in an edge length times its stretching stiffness. Asking for less only burns iterations.
         net = model.net
-        roundoff = 64.0 * np.finfo(float).eps * float(np.max(net.EA * np.abs(net.nodes).max()
-                                                            / net.edge_rest_length))
-        self.tol = max(num.force_tol * model.force_scale, roundoff)
+        self.tol = model.force_tol
+        self._norm = model.residual_norm
         self.max_iterations = num.max_iterations
         self.min_dt = num.min_dt
         self.pattern = model.pattern
@@ -398,9 +395,6 @@ class Stepper:
                           f"tolerance {self.tol:.3g} N)")
 
     # ------------------------------------------------------------------
-    def _norm(self, r: np.ndarray) -> float:
-        return float(np.max(np.abs(r * self._scale))) if len(r) else 0.0
-
     def reset(self) -> None:
         """Forget the Jacobian kept from earlier steps (a run restarted from its beginning repeats itself)."""
         self._factored_dv = None
