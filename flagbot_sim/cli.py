@@ -74,9 +74,9 @@ def cmd_run(args) -> int:
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
-            bar.update(s.time, lambda: f"newton {s.last_stats.newton_iterations}  w_h {finite_text(ob.rate_h, '+.3f')}  "
-                                       f"w_t {finite_text(ob.rate_t, '+.3f')} rad/s  "
-                                       f"v {finite_text(1e3 * ob.speed, '+.3f')} mm/s")
+            bar.update(s.time, lambda: f"newton {s.last_stats.newton_iterations}  "
+                                       f"w_h {finite_text(ob.rate_h, '+.3f')}  w_t {finite_text(ob.rate_t, '+.3f')} "
+                                       f"rad/s  v {finite_text(1e3 * ob.speed, '+.3f')} mm/s")
 
     error = None
     paced0 = None                        # when the live view's pacing starts (after it waited for a client)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bag import BagError, BagReader, find_topic
+from .bag import BagError, BagReader, find_topic, header_seconds
 from .physics import Simulation
 from .topics import HEAD_POSE, JOINT_STATES
 from .scene import SceneError, node_overrides, scene_from_dict
@@ -78,23 +78,19 @@ class Resimulation:
                     tolerance={"position_m": POSITION_TOLERANCE, "rate_rad_s": RATE_TOLERANCE})
 
 
-def _stamp(m) -> float:
-    return m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
-
-
 def motor_samples(js: list) -> tuple[list, np.ndarray, np.ndarray, np.ndarray] | None:
     """Decoded ``joint_states`` messages -> one sample per stamp, in time order: (messages, t, motor angle, motor
     rate); None when there is no ``motor`` joint."""
     if not js or "motor" not in js[0].name:
         return None
     seen, samples = set(), []
-    for m in sorted(js, key=_stamp):
-        ts = round(_stamp(m), 9)
+    for m in sorted(js, key=header_seconds):
+        ts = round(header_seconds(m), 9)
         if ts not in seen:
             seen.add(ts)
             samples.append(m)
     k = samples[0].name.index("motor")
-    return (samples, np.array([_stamp(m) for m in samples]), np.array([m.position[k] for m in samples]),
+    return (samples, np.array([header_seconds(m) for m in samples]), np.array([m.position[k] for m in samples]),
             np.array([m.velocity[k] for m in samples]))
 
 
@@ -162,7 +158,7 @@ def resimulate(path, namespace: str | None = None, progress=None) -> Resimulatio
             raise ResimulationError(f"{path}: needs the joint_states and head_pose topics")
         rows = r.decoded_many([js_topic, pose_topic])
         js = [m for _, _, m in rows[js_topic]]
-        poses = {round(_stamp(m), 9): m.pose.position for _, _, m in rows[pose_topic]}
+        poses = {round(header_seconds(m), 9): m.pose.position for _, _, m in rows[pose_topic]}
         notes = [] if r.report.ok else [f"the recording is damaged: {r.report.describe_loss()}"]
     motor = motor_samples(js)
     if motor is None:

@@ -21,3 +21,10 @@ def to_world(points: np.ndarray, origin=np.zeros(3)) -> np.ndarray:
 def head_rotation_world(material: np.ndarray) -> np.ndarray:
     """Rotation of the head body frame in the fixed frame, from the head edge's material frame columns."""
     return WORLD_FROM_SIM @ material @ BODY_FROM_MATERIAL
+
+
+def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Rotation matrix of the unit quaternion (x, y, z, w) (ROS order)."""
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])

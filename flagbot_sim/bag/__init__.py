@@ -11,11 +11,12 @@ above it in this list:
 - :mod:`.metadata` :class:`RunMetadata` (scene, parameters, version) and rosbag2's own metadata record;
 - :mod:`.writer`   :class:`BagWriter`: chunked, compressed, flushed often enough to survive a SIGKILL;
 - :mod:`.reader`   :class:`BagReader`, :func:`scan` and :func:`recover`, record by record, tolerating damage;
-- :mod:`.lookup`   topics by relative name (:func:`find_topic`), log time -> simulation time (:class:`SimTimeMap`).
+- :mod:`.lookup`   topics by relative name (:func:`find_topic`), log time -> simulation time (:class:`SimTimeMap`),
+  a decoded message's header stamp in seconds (:func:`header_seconds`).
 """
 from .format import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, RUN_METADATA_NAME, BagError, BagWriteError,
                      InterfaceNotFound, NotMcapError)
-from .lookup import SimTimeMap, find_topic, namespace_of
+from .lookup import SimTimeMap, find_topic, header_seconds, namespace_of
 from .metadata import RunMetadata, package_version, source_revision
 from .qos import QosInfo, qos_from_yaml, qos_to_yaml
 from .reader import BagMessage, BagReader, Damage, ScanReport, TopicInfo, recover, scan
@@ -25,5 +26,5 @@ from .writer import BagWriter, TopicStats, WriteSummary
 __all__ = ["BagError", "BagWriteError", "NotMcapError", "InterfaceNotFound", "BagWriter", "BagReader", "BagMessage",
            "RunMetadata", "ScanReport", "Damage", "TopicInfo", "TopicStats", "QosInfo", "WriteSummary",
            "message_definition", "normalize_type", "split_type", "has_header", "cdr_header_stamp_ns", "qos_to_yaml",
-           "qos_from_yaml", "scan", "recover", "find_topic", "namespace_of", "SimTimeMap", "package_version",
-           "source_revision", "DEFAULT_FLUSH_INTERVAL", "DEFAULT_CHUNK_SIZE", "RUN_METADATA_NAME"]
+           "qos_from_yaml", "scan", "recover", "find_topic", "namespace_of", "header_seconds", "SimTimeMap",
+           "package_version", "source_revision", "DEFAULT_FLUSH_INTERVAL", "DEFAULT_CHUNK_SIZE", "RUN_METADATA_NAME"]

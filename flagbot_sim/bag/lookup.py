@@ -44,3 +44,8 @@ class SimTimeMap:
         import numpy as np
         return np.interp(np.asarray(log_ns, dtype=float), np.asarray(self.log_ns, dtype=float),
                          np.asarray(self.clock_ns, dtype=float)) * 1e-9
+
+
+def header_seconds(msg) -> float:
+    """The header stamp of a decoded message, in seconds."""
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec

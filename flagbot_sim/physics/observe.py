@@ -91,10 +91,7 @@ class Snapshot:
 
     def rotation(self) -> np.ndarray:
         """The head body's rotation matrix in the fixed frame (from ``orientation``)."""
-        x, y, z, w = self.orientation
-        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        return world.quaternion_matrix(*self.orientation)
 
 
 #: standard gravity (m/s^2): the weight in the cost of transport, whatever the scene's gravity effect

@@ -16,13 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bag import BagReader, find_topic
+from ..bag import BagReader, find_topic, header_seconds
 from ..topics import HEAD_POSE, JOINT_STATES, MARKERS, SPEED
 from .geometry import RobotGeometry
-
-
-def _stamp(m) -> float:
-    return m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec
 
 
 @dataclass
@@ -64,13 +60,13 @@ def load(path: str | Path, namespace: str | None = None, *, max_rate: float | No
         rows = r.decoded_many([t for t in names if t is not None])
         notes = [] if r.report.ok else [f"the recording is damaged: {r.report.describe_loss()}"]
     mk_rows = rows[names[0]]
-    poses = {round(_stamp(m), 9): m.pose.orientation for _, _, m in rows.get(names[1], [])} if names[1] else {}
+    poses = {round(header_seconds(m), 9): m.pose.orientation for _, _, m in rows.get(names[1], [])} if names[1] else {}
     js_rows = rows.get(names[2], []) if names[2] else []
     values = _joint_values(js_rows, rows.get(names[3], []) if names[3] else [])
     by_stamp = {}
     for _, _, m in mk_rows:                   # markers repeat while the node is paused: keep one per stamp
         if m.markers:
-            by_stamp[round(_stamp(m.markers[0]), 9)] = m
+            by_stamp[round(header_seconds(m.markers[0]), 9)] = m
     frames = []
     for ts in sorted(by_stamp):
         q = poses.get(ts)
@@ -91,7 +87,7 @@ def _joint_values(js_rows, speed_rows) -> dict:
         if "motor" not in m.name:
             continue
         ih, it, im = m.name.index("head_spin"), m.name.index("flagella_spin"), m.name.index("motor")
-        ts = round(_stamp(m), 9)
+        ts = round(header_seconds(m), 9)
         v = {"t": ts, "omega_h": m.velocity[ih], "omega_t": m.velocity[it], "omega_T": m.velocity[im],
              "phi_h": m.position[ih], "phi_t": m.position[it], "drive_angle": m.position[im],
              "motor_torque": m.effort[im] if len(m.effort) > im else math.nan}
