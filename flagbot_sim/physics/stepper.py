@@ -395,6 +395,13 @@ class Stepper:
                           f"tolerance {self.tol:.3g} N)")
 
     # ------------------------------------------------------------------
+    def _trial(self, q: np.ndarray, state: State, plan: StepPlan):
+        """(context, residual with the prescribed rows zeroed) of the trial configuration ``q``."""
+        ctx = self.model.context(q, state, plan)
+        r = self.model.residual(ctx)
+        r[self.fixed] = 0.0
+        return ctx, r
+
     def reset(self) -> None:
         """Forget the Jacobian kept from earlier steps (a run restarted from its beginning repeats itself)."""
         self._factored_dv = None
@@ -467,12 +474,9 @@ class Stepper:
         d = model.driver
         angle = state.drive_angle + (d.omega * h if d is not None else 0.0)
         plan = self.integrator.plan(state, h, angle)
-        fixed = self.fixed
         q = self.predict(state, h)
         model.prescribe(q, state, angle)
-        ctx = model.context(q, state, plan)
-        r = model.residual(ctx)
-        r[fixed] = 0.0
+        ctx, r = self._trial(q, state, plan)
         fresh = False                    # the factorisation in hand was made at an iterate of this attempt
         chord = self._reusable(plan)     # ... or, usable as it is, at an earlier step
         merit_start = None
@@ -488,9 +492,7 @@ class Stepper:
                     # next step's predictor extrapolates this iterate, and one just inside the tolerance makes
                     # the next correction start too close to it to contract (then a fresh Jacobian is paid)
                     q_try = q - self._rotated_solve(r, q)
-                    ctx_try = model.context(q_try, state, plan)
-                    r_try = model.residual(ctx_try)
-                    r_try[fixed] = 0.0
+                    ctx_try, r_try = self._trial(q_try, state, plan)
                     if self._norm(r_try) < rn:
                         ctx = ctx_try
                     it += 1
@@ -501,9 +503,7 @@ class Stepper:
             if chord:
                 dq = -self._rotated_solve(r, q)
                 q_try = q + dq
-                ctx_try = model.context(q_try, state, plan)
-                r_try = model.residual(ctx_try)
-                r_try[fixed] = 0.0
+                ctx_try, r_try = self._trial(q_try, state, plan)
                 m = float(np.linalg.norm(r_try * self._scale))
                 m_max = self._norm(r_try)
                 # a correction that reaches the tolerance is taken whatever its contraction (a residual already
@@ -532,9 +532,7 @@ class Stepper:
             alpha = 1.0
             while True:
                 q_try = q + alpha * dq
-                ctx_try = model.context(q_try, state, plan)
-                r_try = model.residual(ctx_try)
-                r_try[fixed] = 0.0
+                ctx_try, r_try = self._trial(q_try, state, plan)
                 m = float(np.linalg.norm(r_try * self._scale))
                 if math.isfinite(m) and m < (1.0 - 1e-4 * alpha) * merit0:
                     break
