@@ -136,6 +136,27 @@ class RobotModel:
                            da_dq=plan.da_dq, t=plan.t, h=plan.h, drive_angle=plan.drive_angle,
                            frames=self.elastic.trial_frames(q, state.frames))
 
+    # ------------------------------------------------------------------ outputs
+    def motor_torque(self, q: np.ndarray, frames: EdgeFrames, drive_angle: float) -> float:
+        """Torque the motor applies to the shaft (N m; positive drives a positive omega_T): the motor hinge's
+        twisting moment at configuration ``q`` (committed ``frames``), the motor turned by ``drive_angle``. At
+        steady state it equals the head's Stokes torque C2 8 pi mu R_h^3 omega_h."""
+        el = self.elastic
+        h = self.net.motor_hinge
+        if h < 0:
+            return 0.0
+        _, _, tau = el.hinge_strains(q, el.trial_frames(q, frames))
+        return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h] - drive_angle))
+
+    def medium_force(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Total RFT force (N) and torque about the origin (N m) on the flagella at node positions ``x`` (N, 3)
+        and DOF velocities ``v``; zero without the rft effect."""
+        rft = self.effect("rft")
+        if rft is None:
+            return np.zeros(3), np.zeros(3)
+        F = rft.node_forces(x, v)
+        return F.sum(axis=0), np.cross(x[rft.k], F).sum(axis=0)
+
     def residual(self, ctx: StepContext) -> np.ndarray:
         """The residual at the context's trial configuration; all NaN where a formula divides by an exact zero
         there (e.g. two edges folded exactly onto each other): the solvers reject non-finite trials."""

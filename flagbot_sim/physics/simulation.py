@@ -147,13 +147,7 @@ class Simulation:
     def motor_torque(self) -> float:
         """Torque the motor applies to the shaft (N m; positive drives a positive omega_T): the motor hinge's
         twisting moment. At steady state it equals the head's Stokes torque C2 8 pi mu R_h^3 omega_h."""
-        net, el = self.model.net, self.model.elastic
-        h = net.motor_hinge
-        if h < 0:
-            return 0.0
-        fr = el.trial_frames(self.state.q, self.state.frames)
-        _, _, tau = el.hinge_strains(self.state.q, fr)
-        return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h] - self.state.drive_angle))
+        return self.model.motor_torque(self.state.q, self.state.frames, self.state.drive_angle)
 
     def flagella_centrelines(self) -> list[np.ndarray]:
         x = self.positions()
@@ -175,13 +169,9 @@ class Simulation:
 
     def medium_force_on_flagella(self) -> tuple[np.ndarray, np.ndarray]:
         """Total RFT force (N) and torque about the origin (N m) on the flagella at the current state."""
-        rft = self.model.effect("rft")
-        if rft is None or self._prev_state is None:
+        if self._prev_state is None:
             return np.zeros(3), np.zeros(3)
-        x = self.positions()
-        F = rft.node_forces(x, self.state.v)
-        r = x[rft.k]
-        return F.sum(axis=0), np.cross(r, F).sum(axis=0)
+        return self.model.medium_force(self.positions(), self.state.v)
 
     def clamp_frame_tip(self) -> np.ndarray:
         """Flagellum tip in the frame co-rotating with the clamp (clamp at (0, R_d, 0))."""

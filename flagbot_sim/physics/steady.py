@@ -517,27 +517,6 @@ class SteadySolver:
         self.model.prescribe(q, state, 0.0)
 
 
-def medium_force(model: RobotModel, sol: SteadySolution) -> tuple[np.ndarray, np.ndarray]:
-    """Total RFT force (N) and torque about the origin (N m) on the flagella at the equilibrium."""
-    rft = model.effect("rft")
-    if rft is None:
-        return np.zeros(3), np.zeros(3)
-    N = model.net.n_nodes
-    x = sol.q[: 3 * N].reshape(N, 3)
-    F = rft.node_forces(x, sol.velocity)
-    return F.sum(axis=0), np.cross(x[rft.k], F).sum(axis=0)
-
-
-def motor_torque(model: RobotModel, sol: SteadySolution) -> float:
-    """The motor hinge's twisting moment at the equilibrium (N m), as Simulation.motor_torque."""
-    net, el = model.net, model.elastic
-    h = net.motor_hinge
-    if h < 0:
-        return 0.0
-    _, _, tau = el.hinge_strains(sol.q, el.trial_frames(sol.q, sol.frames))
-    return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h]))
-
-
 def summary(model: RobotModel, sol: SteadySolution) -> dict:
     """The fields of ``flagbot run --json`` for the equilibrium, plus its residual and Newton iterations."""
     sc = model.scene
@@ -549,12 +528,13 @@ def summary(model: RobotModel, sol: SteadySolution) -> dict:
            "steady_change": None, "steady_rtol": None, "window": None, "time": None, "steps": 0,
            "dt_reductions": 0, "real_time_factor": None, "kernels": kernels_mode()}
     if sc.clamped:
-        F, T = medium_force(model, sol)
         N = model.net.n_nodes
-        tip = sol.q[: 3 * N].reshape(N, 3)[model.net.flagella_nodes[0][-1]]
+        x = sol.q[: 3 * N].reshape(N, 3)
+        F, T = model.medium_force(x, sol.velocity)
+        tip = x[model.net.flagella_nodes[0][-1]]
         out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in tip])
         torque = -float(T[0])                 # what the clamp applies against the medium's torque
     else:
-        torque = motor_torque(model, sol)
+        torque = model.motor_torque(sol.q, sol.frames, 0.0)   # the motor's twist is in the frames at angle 0
     out.update(efficiency(torque, sol.omega_T, out["v"], float(model.net.node_mass.sum())))
     return out
