@@ -88,7 +88,8 @@ def test_the_demo_waits_for_a_cold_slow_start_and_keeps_every_nodes_log(tmp_path
         time.sleep({SIM_NODE_DELAY!r})
         ''')
     cache = tmp_path / "numba_cache"            # empty: every kernel is compiled
-    r = _demo(tmp_path, sc, "--rpm", "100", "--step-duration", "6", "--json",
+    # (at most 4x real time: a fast machine would otherwise be through the 6 s step between two publications)
+    r = _demo(tmp_path, sc, "--rpm", "100", "--step-duration", "6", "--real-time-factor", "4", "--json",
               env_extra={"NUMBA_CACHE_DIR": str(cache)})
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Traceback" not in r.stderr and "error:" not in r.stderr

@@ -367,7 +367,14 @@ def _demo(args) -> int:
         report_failure(problems[0], log_dir)
         for p in problems[1:]:
             print(f"  also: {p} (its log: {p.node.log_path})", file=sys.stderr)
-    return 1 if problems or any(math.isnan(r["omega_h"]) for r in rows) else 0
+        return 1
+    missing = [f"{r['omega_T'] / RPM:g}" for r in rows if math.isnan(r["omega_h"])]
+    if missing:
+        print(f"error: no state from sim_node arrived in the last quarter of the step(s) at {', '.join(missing)} "
+              f"rpm: a {args.step_duration:g} s step at full speed is over within a few publications; use a "
+              f"longer --step-duration (node logs: {log_dir})", file=sys.stderr)
+        return 1
+    return 0
 
 
 def _check_running(nodes: dict, when: str) -> None:
