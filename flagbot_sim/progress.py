@@ -47,6 +47,14 @@ def terminal_columns(stream) -> int:
         return shutil.get_terminal_size((80, 24)).columns
 
 
+def is_terminal(stream) -> bool:
+    """Whether ``stream`` is a terminal (a line may be redrawn in place), False for anything that cannot say."""
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
 def _draw_in_place(stream, line_for_width, drawn_width: int) -> int:
     """Redraw the terminal line: ``line_for_width(width)`` is the text for the terminal's width, padded over what
     the previous, longer line left (``drawn_width``, its length). Returns the new line's length."""
@@ -67,13 +75,8 @@ class ProgressBar:
         self.unit = unit
         self.stream = stream or sys.stderr
         self.enabled = enabled
-        if tty is None:
-            try:
-                tty = bool(self.stream.isatty())
-            except (AttributeError, ValueError):
-                tty = False
-        self.tty = tty
-        self.min_interval = min_interval if tty else log_interval
+        self.tty = is_terminal(self.stream) if tty is None else tty
+        self.min_interval = min_interval if self.tty else log_interval
         self.eta_after = eta_after
         self.clock = clock
         self.t0 = clock()
@@ -178,13 +181,8 @@ class StatusLine:
                  tty: bool | None = None, clock=time.monotonic):
         self.stream = stream or sys.stderr
         self.enabled = enabled
-        if tty is None:
-            try:
-                tty = bool(self.stream.isatty())
-            except (AttributeError, ValueError):
-                tty = False
-        self.tty = tty
-        self.min_interval = min_interval if tty else log_interval
+        self.tty = is_terminal(self.stream) if tty is None else tty
+        self.min_interval = min_interval if self.tty else log_interval
         self.clock = clock
         self.t0 = clock()
         self.text = ""
