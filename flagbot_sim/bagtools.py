@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of, recover
-from .cliutil import dumps
+from .cliutil import check_figure_file, check_out_file, dumps
 from .ros.bag_args import add_record_arguments, add_replay_arguments, fail as _fail  # ROS-free: no rclpy import
 from .topics import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
 
@@ -47,6 +47,7 @@ def cmd_replay(args) -> int:
 
 def cmd_recover(args) -> int:
     out = args.output or str(Path(args.bag).with_suffix("")) + ".recovered.mcap"
+    check_out_file(out, "--output")                   # before the damaged file is scanned
     try:
         rep = recover(args.bag, out, overwrite=args.overwrite)
     except BagError as exc:
@@ -274,6 +275,8 @@ def plot_summary(s: dict, out: str | Path) -> None:
 
 
 def cmd_summary(args) -> int:
+    if args.plot:
+        check_figure_file(args.plot, "--plot")       # before the file is read: a refusal is one line, exit 2
     try:
         s = summarize(args.bag, namespace=args.namespace, tail=args.tail, time_axis=args.time)
     except BagError as exc:

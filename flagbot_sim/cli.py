@@ -199,7 +199,15 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("scenes", help="list built-in scenes and the scene keys with units and ranges")
     p.set_defaults(func=cmd_scenes)
-    if command in ("run", "scenes"):
+    p = sub.add_parser("compile", help="compile the simulator's kernels into numba's on-disk cache now (first run "
+                                       "only; later runs load them), saying how long it took",
+                       description="Compile every kernel the simulator uses (or load them, when numba's on-disk "
+                                   "cache already holds them) and say how long it took. Every command compiles on "
+                                   "first use anyway; this makes it a step of its own, e.g. after an install, so "
+                                   "that the first run, the demo's nodes and timed tests start warm. The cache is "
+                                   "numba's: next to the package, or NUMBA_CACHE_DIR.")
+    p.set_defaults(func=cmd_compile)
+    if command in ("run", "scenes", "compile"):
         return parser
     if command is not None and command in COMMANDS:
         wanted = [COMMANDS[command][0]]
@@ -215,6 +223,17 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             q = sub.add_parser(cmd, help=help_text, add_help=False)
             q.set_defaults(func=_placeholder(cmd, module))
     return parser
+
+
+def cmd_compile(args) -> int:
+    from .kernels import compile_kernels, describe
+    cache = os.environ.get("NUMBA_CACHE_DIR", "").strip()
+    print(f"flagbot compile: every kernel of the simulator, into numba's cache "
+          f"({'NUMBA_CACHE_DIR=' + cache if cache else 'its default: beside the package, or a per-user directory when that is read-only'})",
+          flush=True)
+    seconds, compiled = compile_kernels()
+    print(describe(seconds, compiled))
+    return 0
 
 
 def cmd_scenes(args) -> int:
@@ -250,7 +269,7 @@ def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
 
 
 #: commands that hold no open resource when they return, so their process may skip the final garbage collection
-FAST_EXIT = frozenset({"run", "scenes", "beam", "sweep-plot"})
+FAST_EXIT = frozenset({"run", "scenes", "compile", "beam", "sweep-plot"})
 
 
 def _fast_exit() -> None:

@@ -68,14 +68,19 @@ def dumps(obj: Any, **kwargs) -> str:
 _IMPORTED = time.perf_counter()
 
 
+def _proc_stat(pid: int | str = "self") -> list[bytes]:
+    """The fields of /proc/PID/stat after the command name, so that ``fields[k - 3]`` is proc(5)'s field k
+    (Linux only: OSError elsewhere)."""
+    with open(f"/proc/{pid}/stat", "rb") as f:
+        # the command name (field 2) may hold spaces and parentheses: split after the last ')'
+        return f.read().rsplit(b")", 1)[1].split()
+
+
 def process_age() -> float:
     """Seconds since this process started (Linux: from /proc, so interpreter start-up and the ROS wheels'
     re-exec of the interpreter are included; elsewhere: since this module was imported)."""
     try:
-        with open("/proc/self/stat", "rb") as f:
-            # the command name (field 2) may hold spaces and parentheses: split after the last ')'
-            fields = f.read().rsplit(b")", 1)[1].split()
-        start_ticks = int(fields[19])                       # field 22, starttime, in clock ticks since boot
+        start_ticks = int(_proc_stat()[19])                 # field 22, starttime, in clock ticks since boot
         with open("/proc/uptime", "rb") as f:
             uptime = float(f.read().split()[0])
         return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
@@ -83,20 +88,82 @@ def process_age() -> float:
         return time.perf_counter() - _IMPORTED
 
 
-def make_out_dir(path) -> "Path":
-    """Create the output directory ``--out`` (and its parents) before any work is done; a path that is a file
-    or cannot be created is refused with a one-line reason (a SceneError), not a traceback after the work."""
+def cpu_seconds(pid: int) -> float | None:
+    """CPU time (user + system, its waited-for children included) process ``pid`` has used so far, from /proc;
+    None where that cannot be read (not Linux, or the process is gone). A process that is working (compiling,
+    stepping) sees it grow even on a loaded machine; one that sleeps or waits does not."""
+    try:
+        fields = _proc_stat(pid)
+        return sum(int(x) for x in fields[11:15]) / os.sysconf("SC_CLK_TCK")   # fields 14-17: utime .. cstime
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def make_out_dir(path, option: str = "--out") -> "Path":
+    """Create the output directory ``path`` of ``option`` (and its parents) before any work is done; a path that
+    is a file or cannot be created is refused with a one-line reason (a SceneError), not a traceback after the
+    work. Output files are checked by :func:`check_out_file`."""
     from pathlib import Path
 
     from .scene import SceneError
     out = Path(path)
+    if str(path).strip() == "":
+        raise SceneError(f"{option}: the directory name is empty")
     if out.exists() and not out.is_dir():
-        raise SceneError(f"--out {out}: exists and is not a directory")
+        raise SceneError(f"{option} {out}: exists and is not a directory")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SceneError(f"--out {out}: cannot create the directory: {exc.strerror or exc}") from None
+        raise SceneError(f"{option} {out}: cannot create the directory: {exc.strerror or exc}") from None
     return out
+
+
+def check_out_file(path, option: str) -> "Path":
+    """Check, before any work is done, that the output file ``path`` given with ``option`` (``--plot``,
+    ``--gif``, ...) can be written: it is not a directory (or a FIFO, a device), its directory exists, and a file
+    can be created there (or the existing one written). A refusal is a SceneError naming the option and the
+    path, one line: the command exits 2 at once instead of a traceback after the work. Leaves nothing behind (a
+    file created to find out is removed)."""
+    from pathlib import Path
+
+    from .scene import SceneError
+    p = Path(path)
+    if str(path).strip() == "":
+        raise SceneError(f"{option}: the file name is empty")
+    if p.is_dir():
+        raise SceneError(f"{option} {p}: is a directory; give a file name, e.g. {p / 'name'}{p.suffix}")
+    if p.exists() and not p.is_file():
+        raise SceneError(f"{option} {p}: exists and is not a regular file")
+    parent = p.parent
+    if not parent.exists():
+        raise SceneError(f"{option} {p}: directory {parent} does not exist")
+    if not parent.is_dir():
+        raise SceneError(f"{option} {p}: {parent} is not a directory")
+    existed = p.exists()
+    try:
+        fd = os.open(p, os.O_WRONLY | os.O_APPEND if existed else os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except OSError as exc:
+        raise SceneError(f"{option} {p}: cannot write it: {exc.strerror or exc}") from None
+    os.close(fd)
+    if not existed:
+        os.unlink(p)
+    return p
+
+
+def check_figure_file(path, option: str) -> "Path":
+    """:func:`check_out_file` for a figure that matplotlib writes in the format its suffix names (``.png``,
+    ``.svg``, ``.pdf``, ...): a path without a suffix or with one matplotlib cannot write is refused too."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from .scene import SceneError
+    p = check_out_file(path, option)
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    suffix = p.suffix.lower().removeprefix(".")
+    if suffix not in kinds:
+        what = "has no suffix" if not suffix else f"matplotlib cannot write .{suffix} figures"
+        raise SceneError(f"{option} {p}: {what}; the suffix names the format: "
+                         f"{', '.join('.' + k for k in sorted(kinds))}")
+    return p
 
 
 def broken_pipe_exit() -> int:

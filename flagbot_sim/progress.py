@@ -47,6 +47,25 @@ def terminal_columns(stream) -> int:
         return shutil.get_terminal_size((80, 24)).columns
 
 
+def is_terminal(stream) -> bool:
+    """Whether ``stream`` is a terminal (a line may be redrawn in place), False for anything that cannot say."""
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+def _draw_in_place(stream, line_for_width, drawn_width: int) -> int:
+    """Redraw the terminal line: ``line_for_width(width)`` is the text for the terminal's width, padded over what
+    the previous, longer line left (``drawn_width``, its length). Returns the new line's length."""
+    # one column short of the edge: writing the last column makes some terminals wrap
+    width = max(1, terminal_columns(stream) - 1)
+    line = line_for_width(width)
+    pad = " " * max(0, min(drawn_width, width) - len(line))
+    stream.write("\r" + line + pad)
+    return len(line)
+
+
 class ProgressBar:
     def __init__(self, total: float, label: str = "", unit: str = "s", stream=None, enabled: bool = True,
                  min_interval: float = 0.2, log_interval: float = 10.0, eta_after: float = 1.0,
@@ -56,13 +75,8 @@ class ProgressBar:
         self.unit = unit
         self.stream = stream or sys.stderr
         self.enabled = enabled
-        if tty is None:
-            try:
-                tty = bool(self.stream.isatty())
-            except (AttributeError, ValueError):
-                tty = False
-        self.tty = tty
-        self.min_interval = min_interval if tty else log_interval
+        self.tty = is_terminal(self.stream) if tty is None else tty
+        self.min_interval = min_interval if self.tty else log_interval
         self.eta_after = eta_after
         self.clock = clock
         self.t0 = clock()
@@ -139,12 +153,7 @@ class ProgressBar:
         self._last_draw = now
         self._drawn_value = self.value
         if self.tty:
-            # one column short of the edge: writing the last column makes some terminals wrap
-            width = max(1, terminal_columns(self.stream) - 1)
-            line = self.text(now, width)
-            pad = " " * max(0, min(self._drawn_width, width) - len(line))
-            self.stream.write("\r" + line + pad)
-            self._drawn_width = len(line)
+            self._drawn_width = _draw_in_place(self.stream, lambda width: self.text(now, width), self._drawn_width)
         else:
             self.stream.write(self.text(now) + "\n")
         self.stream.flush()
@@ -159,3 +168,64 @@ class ProgressBar:
             self._drawn_width = 0
         elif self._drawn_value != self.value or self._first is None:
             self._draw(self.clock())
+
+
+class StatusLine:
+    """What is being waited for, with the elapsed time, when there is no total to show a bar of (the kernels
+    compiling, nodes starting): ``update("sim_node: compiling kernels")`` shows ``sim_node: compiling kernels
+    [12s]``. On a terminal the line is redrawn in place (at most every ``min_interval``, or at once when the text
+    changes); anywhere else a plain line is written when the text changes and every ``log_interval`` seconds, so
+    a log shows what was waited for and that it was still going."""
+
+    def __init__(self, stream=None, enabled: bool = True, min_interval: float = 0.5, log_interval: float = 15.0,
+                 tty: bool | None = None, clock=time.monotonic):
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.tty = is_terminal(self.stream) if tty is None else tty
+        self.min_interval = min_interval if self.tty else log_interval
+        self.clock = clock
+        self.t0 = clock()
+        self.text = ""
+        self._last_draw = -math.inf
+        self._drawn_text: str | None = None
+        self._drawn_width = 0
+
+    def elapsed(self) -> float:
+        return self.clock() - self.t0
+
+    def line(self, width: int | None = None) -> str:
+        line = f"{self.text} [{format_duration(self.elapsed())}]"
+        if width is not None and len(line) > width:
+            line = line[:max(0, width - 3)] + "..." if width > 3 else line[:width]
+        return line
+
+    def update(self, text: str) -> None:
+        self.text = " ".join(str(text).split())
+        if not self.enabled:
+            return
+        now = self.clock()
+        if self.text == self._drawn_text and now - self._last_draw < self.min_interval:
+            return
+        self._last_draw = now
+        self._drawn_text = self.text
+        if self.tty:
+            self._drawn_width = _draw_in_place(self.stream, self.line, self._drawn_width)
+        else:
+            self.stream.write(self.line() + "\n")
+        self.stream.flush()
+
+    def close(self, final: str | None = None) -> None:
+        """End the status: ``final`` (e.g. 'kernels compiled in 18.2 s') replaces it, else a terminal's line is
+        cleared and a log keeps its last line."""
+        if not self.enabled:
+            return
+        if self.tty:
+            if final is not None:
+                _draw_in_place(self.stream, lambda width: final, self._drawn_width)
+                self.stream.write("\n")
+            elif self._drawn_width:
+                self.stream.write("\r" + " " * self._drawn_width + "\r")
+            self._drawn_width = 0
+        elif final is not None:
+            self.stream.write(final + "\n")
+        self.stream.flush()

@@ -123,3 +123,44 @@ def test_the_sweep_progress_line_shows_a_failed_point_without_nan():
     text = _progress_text({"rows": [{"framework": "der", "error": "no steady state", "hit_cap": False, "n": 2,
                                      "L": 0.111, "omega_T_rpm": 100.0, "v": float("nan"), "wall_seconds": None}]})
     assert "nan" not in text and "v=--mm/s ERROR" in text and "L=111mm" in text
+
+
+# ------------------------------------------------------------------------------------------------ StatusLine
+from flagbot_sim.progress import StatusLine  # noqa: E402
+
+
+def test_a_status_in_a_log_is_a_line_per_change_and_one_per_interval():
+    clock, out = Clock(), io.StringIO()
+    st = StatusLine(stream=out, clock=clock, log_interval=15.0)
+    st.update("waiting for the nodes: sim_node: starting")
+    for t in range(1, 40):                       # same text: a line only every 15 s
+        clock.t = float(t)
+        st.update("waiting for the nodes: sim_node: starting")
+    clock.t = 40.5
+    st.update("waiting for the nodes: sim_node: compiling kernels (first run only)")     # changed: at once
+    st.close("nodes ready after 41s")
+    assert out.getvalue().splitlines() == [
+        "waiting for the nodes: sim_node: starting [0s]",
+        "waiting for the nodes: sim_node: starting [15s]",
+        "waiting for the nodes: sim_node: starting [30s]",
+        "waiting for the nodes: sim_node: compiling kernels (first run only) [40s]",
+        "nodes ready after 41s"]
+    assert "\r" not in out.getvalue()
+
+
+def test_a_status_on_a_terminal_is_redrawn_in_place_and_cleared_or_replaced(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "40")
+    clock, term = Clock(), Terminal()
+    st = StatusLine(stream=term, clock=clock)
+    st.update("compiling kernels (first run only, and a long tail of words)")
+    clock.t = 2.0
+    st.update("loading")
+    segments = draws(term.getvalue())
+    assert all(len(s) <= 39 for s in segments) and segments[0].endswith("...")
+    assert segments[-1].startswith("loading [2s]") and segments[-1].strip() == "loading [2s]"   # padded over
+    st.close()                                   # cleared: what it shows is blanked, the cursor back at the start
+    assert term.getvalue().endswith("\r" + " " * len("loading [2s]") + "\r") and "\n" not in term.getvalue()
+    st2 = StatusLine(stream=Terminal(), clock=clock)
+    st2.update("x")
+    st2.close("done in 3 s")
+    assert draws(st2.stream.getvalue())[-1] == "done in 3 s\n"

@@ -44,3 +44,125 @@ def test_the_step_table_takes_the_beam_prediction_whose_split_is_the_steps_comma
     rows = step_table(samples, [(0.0, 2.0, 5.0), (2.0, 4.0, 10.0), (4.0, 6.0, 20.0)], beam)
     assert [(r["beam_omega_h"], r["beam_v"]) for r in rows[:2]] == [(4.8, 1e-4), (9.5, 2e-4)]
     assert math.isnan(rows[2]["beam_omega_h"]) and math.isnan(rows[2]["omega_h"])
+
+
+# ------------------------------------------------------------------------------------------------ start-up
+import json  # noqa: E402
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import textwrap  # noqa: E402
+
+from cli_helpers import ROOT  # noqa: E402
+from flagbot_sim.ros.demo import Liveness, start_phase  # noqa: E402
+
+#: s the test's sitecustomize holds sim_node back: past the 60 s the demo used to allow for the nodes to appear
+SIM_NODE_DELAY = 65.0
+
+
+def _sitecustomize(directory, body: str):
+    """A sitecustomize.py that runs ``body`` in sim_node's process only (found by its command line: sys.argv is
+    not set yet when sitecustomize runs), on a PYTHONPATH of the test's own: nothing in the product knows of it."""
+    directory.mkdir()
+    (directory / "sitecustomize.py").write_text(textwrap.dedent('''\
+        import os, sys, time
+        with open("/proc/self/cmdline", "rb") as _f:
+            _argv = _f.read().split(b"\\0")
+        if b"flagbot_sim.ros.sim_node" in _argv:
+        ''') + textwrap.indent(textwrap.dedent(body), "    "))
+    return directory
+
+
+def _demo(tmp_path, sitecustomize, *args, env_extra=None, timeout=1500):
+    env = dict(os.environ, PYTHONPATH=f"{sitecustomize}{os.pathsep}{ROOT}", **(env_extra or {}))
+    return subprocess.run([sys.executable, "-m", "flagbot_sim", "demo", "--log-dir", str(tmp_path / "logs"),
+                           *args], capture_output=True, text=True, env=env, cwd=ROOT, timeout=timeout)
+
+
+def test_the_demo_waits_for_a_cold_slow_start_and_keeps_every_nodes_log(tmp_path):
+    """An empty kernel cache and a sim_node held back 65 s before Python even imports it (longer than the fixed
+    60 s the demo used to give the nodes, compile included): the demo compiles the kernels first, as a step of its
+    own, waits for sim_node's readiness while saying what it waits for, and completes with the table."""
+    sc = _sitecustomize(tmp_path / "slow", f'''\
+        print("test: sim_node held back {SIM_NODE_DELAY:g} s", file=sys.stderr, flush=True)
+        time.sleep({SIM_NODE_DELAY!r})
+        ''')
+    cache = tmp_path / "numba_cache"            # empty: every kernel is compiled
+    # (at most 4x real time: a fast machine would otherwise be through the 6 s step between two publications)
+    r = _demo(tmp_path, sc, "--rpm", "100", "--step-duration", "6", "--real-time-factor", "4", "--json",
+              env_extra={"NUMBA_CACHE_DIR": str(cache)})
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and "error:" not in r.stderr
+    (row,) = json.loads(r.stdout)["steps"]
+    # a real run: the head turns with most of omega_T and the robot swims head first (design 1, 100 rpm)
+    assert row["omega_T"] == pytest.approx(100 * math.pi / 30)
+    assert 0.5 * row["omega_T"] < row["omega_h"] < row["omega_T"] and row["v"] > 0
+    # the compile was its own step, before the nodes: sim_node started warm and compiled nothing
+    assert "demo: compiling kernels (first run only" in r.stderr and "demo: kernels compiled in" in r.stderr
+    assert any(cache.rglob("*.nbi"))
+    logs = {p.stem: p.read_text() for p in (tmp_path / "logs").glob("*.log")}
+    assert set(logs) == {"sim_node", "beam_node", "cmd_profile"}
+    assert "compiling kernels" not in logs["sim_node"]
+    # the delay happened in sim_node, and only there; its log is kept, up to its readiness line
+    assert f"test: sim_node held back {SIM_NODE_DELAY:g} s" in logs["sim_node"]
+    assert not any("held back" in logs[k] for k in ("beam_node", "cmd_profile"))
+    assert "waiting for cmd_omega" in logs["sim_node"]
+    # while it waited it said for what; it was ready no sooner than the delay allows
+    waiting = [line for line in r.stderr.splitlines() if line.startswith("waiting for the nodes:")]
+    assert waiting and all("sim_node: " in line for line in waiting)
+    assert any("sim_node: starting" in line and "beam_node: ready" in line for line in waiting)
+    (ready,) = [line for line in r.stderr.splitlines() if line.startswith("nodes ready after ")]
+    from flagbot_sim.progress import format_duration
+    assert ready >= f"nodes ready after {format_duration(SIM_NODE_DELAY)}"   # '1m05s' .. '1m59s' sort as times
+
+
+def test_a_node_that_dies_at_start_is_one_error_line_with_its_log(tmp_path):
+    """sim_node ends before it is ready: one `error:` line naming it, its exit code and its kept log, then the
+    log's last lines (which say why); exit status 1, no traceback, and the other nodes are stopped."""
+    sc = _sitecustomize(tmp_path / "dies", '''\
+        print("test: sim_node gives up at start", file=sys.stderr, flush=True)
+        os._exit(3)
+        ''')
+    r = _demo(tmp_path, sc, "--rpm", "100", "--step-duration", "2", timeout=600)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and r.stdout == ""
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
+    log = tmp_path / "logs" / "sim_node.log"
+    assert errors == [f"error: sim_node ended with exit code 3 before it was ready (its log: {log})"]
+    tail = r.stderr.split(errors[0], 1)[1]
+    assert "last 1 lines of sim_node's log:\n  | test: sim_node gives up at start" in tail
+    assert log.read_text() == "test: sim_node gives up at start\n"
+
+
+def test_the_liveness_rule_fails_only_a_node_that_stopped_working_or_took_far_too_long():
+    live = Liveness(start=0.0, limit=600.0, stall=60.0, factor=3)
+    # within the limit nothing fails, working or not
+    for t in range(0, 601, 10):
+        live.observe(float(t), (0.0, 0))
+        assert live.verdict(float(t)) is None
+    # past it: a node that keeps using CPU is waited for ...
+    for t in range(610, 1800, 10):
+        live.observe(float(t), (float(t), 0))
+        assert live.verdict(float(t)) is None
+    # ... up to 3x the limit
+    live.observe(1810.0, (1810.0, 0))
+    assert "1810 s (3 x --start-timeout 600 s), though still working" in live.verdict(1810.0)
+    # a node past the limit with no sign of work for 60 s has failed; output counts as work as much as CPU time
+    idle = Liveness(start=0.0, limit=600.0, stall=60.0)
+    idle.observe(0.0, (5.0, 100))
+    idle.observe(580.0, (5.0, 180))                     # wrote a line at 580 s
+    assert idle.verdict(639.0) is None                  # 59 s idle
+    assert idle.verdict(640.0) == ("not ready after 640 s, and no sign of work (no CPU time used, no output) "
+                                   "for the last 60 s")
+    # a short limit shortens the stall window with it
+    assert Liveness(start=0.0, limit=5.0).stall == 5.0
+
+
+def test_the_status_says_what_each_node_is_doing_from_its_log():
+    assert start_phase("sim_node", "", ready=False) == "starting"
+    assert start_phase("sim_node", "flagbot_sim: compiling kernels (first run only, ...)\n", ready=False) == \
+        "compiling kernels (first run only)"
+    log = "flagbot_sim: compiling kernels (first run only)\n[INFO] [sim_node]: ... waiting for cmd_omega\n"
+    assert start_phase("sim_node", log, ready=False) == "started, connecting"
+    assert start_phase("sim_node", log, ready=True) == "ready"
+    assert start_phase("beam_node", "anything", ready=False) == "starting"

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cliutil import dumps
+from ..cliutil import dumps, make_out_dir
 from ..physics import Simulation, StepFailed
 from ..scene import PRESETS, load_scene
 
@@ -556,8 +556,7 @@ def run(args) -> int:
     bad = [p for p in parts if p not in PARTS]
     if bad:
         raise SystemExit(f"error: unknown part(s) {bad}; choose from {', '.join(PARTS)}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_out_dir(args.out)
     refs = References(out / "references.json")
     q = args.quick
     runs: list[Run] = []

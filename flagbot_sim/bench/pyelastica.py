@@ -526,6 +526,14 @@ def main(argv=None) -> int:
     ap.add_argument("--no-elastica", action="store_true", help="skip the PyElastica half")
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     a = ap.parse_args(argv)
+    if a.json:
+        from ..cliutil import check_out_file
+        from ..scene import SceneError
+        try:
+            check_out_file(a.json, "--json")       # before minutes of benchmarking
+        except SceneError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     confirm = a.confirm if a.confirm is not None else (3.0 if a.quick else 5.0)
     if a.der:
         der = [tuple(float(v) for v in item.split(":")) for item in a.der.split(",")]

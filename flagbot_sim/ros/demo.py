@@ -5,6 +5,16 @@ timed on /clock), watches them with a monitor node in this process, then prints 
 steady omega_h, omega_t and speed next to the beam-theory prediction. DDS stays on this machine (the loopback
 profile of :mod:`flagbot_sim.ros.dds`, for the monitor and the nodes alike), in the ROS domain given by
 ``--domain``, else an exported ROS_DOMAIN_ID, else one of its own.
+
+Start-up is waited for by readiness, not by a fixed delay: on an empty kernel cache the kernels are compiled
+first, in this process, as a step of their own (with its elapsed time), so that the nodes start warm; then each
+node counts as ready when the monitor sees what it offers (sim_node's /clock and pause service, beam_node's
+predictions, cmd_profile's commands), and until then the status line says what each one is doing (from its log:
+"sim_node: compiling kernels (first run only)", "started, connecting"). Each node's output (stdout and stderr)
+is kept in its own log file, ``--log-dir`` (default: a new directory under ROS_LOG_DIR). A node fails when its
+process ends, or by the liveness rule of :class:`Liveness` (a node that is alive and still working is never
+failed within the start limit); a failure is one ``error:`` line naming the node and its log, the log's last
+lines, and exit status 1.
 """
 from __future__ import annotations
 
@@ -16,10 +26,25 @@ import sys
 import tempfile
 import time
 
+from pathlib import Path
+
+from .. import topics as names
 from ..beam import REGIMES
-from ..cliutil import finite_text
-from ..progress import ProgressBar
-from ..scene import RPM, load_scene, node_overrides
+from ..cliutil import check_out_file, cpu_seconds, finite_float, finite_text, make_out_dir
+from ..progress import ProgressBar, StatusLine, format_duration
+from ..scene import RPM, SceneError, load_scene, node_overrides
+
+#: s a node may take to become ready before the liveness rule can fail it (``--start-timeout``): generous, since a
+#: first start on a loaded 2-core machine (imports, DDS, a cold kernel compile) has been seen to take minutes
+START_TIMEOUT = 600.0
+#: s without a sign of work (CPU time used, output written) after which a node past the start limit is stuck
+STALL = 60.0
+#: a node still working at the start limit is waited for up to this many times the limit
+HARD_LIMIT_FACTOR = 3
+#: s of wall time without a new /clock during the run (sim_node alive) after which the simulation is stuck
+CLOCK_STALL = 300.0
+#: lines of a failed node's log printed under the error line
+LOG_TAIL = 25
 
 
 def register(sub) -> None:
@@ -34,6 +59,12 @@ def register(sub) -> None:
                    help="ROS domain id, 0-232 (default: an exported ROS_DOMAIN_ID, else one derived from the pid)")
     p.add_argument("--record", default=None, help="also record the run to this MCAP file")
     p.add_argument("--json", action="store_true", help="print the table as JSON")
+    p.add_argument("--start-timeout", type=float, default=START_TIMEOUT, metavar="S",
+                   help=f"seconds a node may take to become ready (default {START_TIMEOUT:g}); past it, a node "
+                        f"that shows no sign of work for {STALL:g} s fails, one still working gets up to "
+                        f"{HARD_LIMIT_FACTOR}x as long")
+    p.add_argument("--log-dir", default=None, metavar="DIR",
+                   help="directory for the nodes' logs, one file per node (default: a new one under ROS_LOG_DIR)")
     p.set_defaults(func=cmd_demo)
 
 
@@ -66,10 +97,140 @@ def _use_demo_environment(domain: int) -> None:
         os.environ["ROS_LOG_DIR"] = tempfile.mkdtemp(prefix="flagbot_demo_log_")
 
 
-def _check_alive(procs: dict) -> None:
-    dead = [k for k, p in procs.items() if p.poll() is not None]
-    if dead:
-        raise RuntimeError(f"{', '.join(dead)} stopped early")
+class DemoFailure(Exception):
+    """The demo cannot go on: a one-line message and the node whose log says why (None: no node in particular)."""
+
+    def __init__(self, message: str, node: "NodeProcess | None" = None):
+        super().__init__(message)
+        self.node = node
+
+
+class Liveness:
+    """The liveness rule for a node that is not ready yet: when it counts as failed.
+
+    Never within ``limit`` seconds of its start (a cold first start on a loaded machine takes minutes). Past the
+    limit, a node that has shown no sign of work for ``stall`` seconds (neither its CPU time nor its output grew:
+    it sleeps, waits, or hangs) has failed; a node that is still working is given time up to ``factor`` times the
+    limit. A node whose process ended has failed whatever this says (the monitor checks that first)."""
+
+    def __init__(self, start: float, limit: float, stall: float = STALL, factor: float = HARD_LIMIT_FACTOR):
+        self.start = start
+        self.limit = limit
+        self.stall = min(stall, limit)
+        self.factor = factor
+        self.activity = None
+        self.last_change = start
+
+    def observe(self, now: float, activity) -> None:
+        """``activity``: anything that changes while the node works, e.g. (CPU seconds, bytes of output)."""
+        if activity != self.activity:
+            self.activity = activity
+            self.last_change = now
+
+    def verdict(self, now: float) -> str | None:
+        """None while the node may still become ready, else why it has failed (one line)."""
+        waited, idle = now - self.start, now - self.last_change
+        if waited <= self.limit:
+            return None
+        if idle >= self.stall:
+            return (f"not ready after {waited:.0f} s, and no sign of work (no CPU time used, no output) for the "
+                    f"last {idle:.0f} s")
+        if waited > self.factor * self.limit:
+            return (f"not ready after {waited:.0f} s ({self.factor:g} x --start-timeout {self.limit:g} s), though "
+                    f"still working")
+        return None
+
+
+#: what a node's log says about its start-up, the later stage first: (text in the log, what the status shows)
+START_PHASES = {
+    "sim_node": [(f"waiting for {names.CMD_OMEGA}", "started, connecting"),
+                 ("compiling kernels", "compiling kernels (first run only)")],
+}
+
+
+def start_phase(name: str, log: str, ready: bool) -> str:
+    """What the status line says about node ``name`` while the demo waits for it."""
+    if ready:
+        return "ready"
+    for text, phase in START_PHASES.get(name, []):
+        if text in log:
+            return phase
+    return "starting"
+
+
+class NodeProcess:
+    """One node's process, its output (stdout and stderr together) kept in ``log_path``."""
+
+    def __init__(self, name: str, cmd: list[str], log_path: Path, env: dict):
+        self.name = name
+        self.log_path = log_path
+        self._log = open(log_path, "w")
+        try:
+            self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env)
+        except OSError:
+            self._log.close()
+            raise
+
+    def log(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def activity(self) -> tuple:
+        try:
+            size = self.log_path.stat().st_size
+        except OSError:
+            size = None
+        return (cpu_seconds(self.proc.pid), size)
+
+    def exit_code(self) -> int | None:
+        return self.proc.poll()
+
+    def stop(self, timeout: float = 20.0):
+        """The exit code once the node has stopped (SIGINT, then SIGKILL after ``timeout``), or 'killed'."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            code = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            code = "killed"
+        self._log.close()
+        return code
+
+    def tail(self, n: int = LOG_TAIL) -> list[str]:
+        return self.log().rstrip("\n").splitlines()[-n:] if self.log().strip() else []
+
+
+def exit_text(code) -> str:
+    if isinstance(code, int) and code < 0:
+        try:
+            return f"signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"signal {-code}"
+    return f"exit code {code}"
+
+
+def report_failure(exc: DemoFailure, log_dir: Path, stream=None) -> None:
+    """One ``error:`` line, then the last lines of the failing node's log (the whole log stays in its file)."""
+    stream = stream or sys.stderr
+    node = exc.node
+    where = f"its log: {node.log_path}" if node is not None else f"node logs: {log_dir}"
+    print(f"error: {exc} ({where})", file=stream)
+    lines = node.tail() if node is not None else []
+    if lines:
+        print(f"last {len(lines)} lines of {node.name}'s log:", file=stream)
+        for line in lines:
+            print("  | " + line, file=stream)
+    elif node is not None:
+        print(f"({node.name} wrote nothing)", file=stream)
+    stream.flush()
+
+
+def _default_log_dir() -> Path:
+    return Path(os.environ["ROS_LOG_DIR"]) / f"flagbot_demo_{time.strftime('%Y%m%d_%H%M%S')}_{os.getpid()}"
 
 
 #: s of wall time between the monitor seeing every node and the start of simulated time
@@ -116,10 +277,22 @@ def format_table(rows: list[dict], scene: str, n: int, regime: str) -> str:
 
 
 def cmd_demo(args) -> int:
+    try:
+        return _demo(args)
+    except KeyboardInterrupt:
+        print("error: interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
+
+
+def _demo(args) -> int:
     from ..motor_profile import parse
     scene = load_scene(args.scene, node_overrides(args.n, []))
     n = scene.robot.n_flagella
-    rpms = [float(x) for x in args.rpm.split(",") if x.strip()]
+    rpms = [finite_float(x, "--rpm", SceneError) for x in args.rpm.split(",") if x.strip()]
+    if not rpms:
+        raise SceneError(f"--rpm: give one or more motor speeds, e.g. 50,100,150 (got {args.rpm!r})")
+    if not (args.start_timeout > 0 and math.isfinite(args.start_timeout)):
+        raise SceneError(f"--start-timeout must be a positive number of seconds, got {args.start_timeout!r}")
     spec = ",".join(f"{r:g}:{args.step_duration:g}" for r in rpms)
     profile = parse("steps", [spec], rpm=True)
     try:
@@ -127,7 +300,23 @@ def cmd_demo(args) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if args.record:
+        check_out_file(args.record, "--record")
     _use_demo_environment(domain)
+    log_dir = make_out_dir(args.log_dir or _default_log_dir(), "--log-dir")
+    print(f"flagbot demo: ROS domain {domain}; the nodes' logs go to {log_dir}", file=sys.stderr, flush=True)
+
+    from ..physics.warmup import cache_is_warm
+    if not cache_is_warm():
+        # compiled here, as a step with its own elapsed time, the kernels are in the cache when sim_node starts
+        from ..kernels import compile_kernels, describe
+        try:
+            seconds, compiled = compile_kernels(prefix="demo: ")
+        except Exception as exc:  # noqa: BLE001 - one line; sim_node would meet the same failure
+            print(f"error: compiling the kernels failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return 1
+        print("demo: " + describe(seconds, compiled), file=sys.stderr, flush=True)
+
     py = [sys.executable, "-m"]
     common = ["-p", f"scene:={args.scene}", "-p", f"n_flagella:={n}"]
     cmds = {
@@ -140,27 +329,29 @@ def cmd_demo(args) -> int:
     }
     if args.record:   # sim_node's own recorder: the resolved scene and every parameter go into the file
         cmds["sim_node"] += ["-p", f"record:={os.path.abspath(args.record)}"]
-    logs = {k: tempfile.TemporaryFile(mode="w+") for k in cmds}
-    procs = {k: subprocess.Popen(c, stdout=logs[k], stderr=subprocess.STDOUT) for k, c in cmds.items()}
+    env = dict(os.environ, PYTHONUNBUFFERED="1")     # a node's prints reach its log as they happen
+    nodes: dict[str, NodeProcess] = {}
+    failure = None
+    codes = {}
     try:
-        samples, beam = _monitor(profile.duration, procs, args.json, recording=bool(args.record))
+        for k, c in cmds.items():
+            nodes[k] = NodeProcess(k, c, log_dir / f"{k}.log", env)
+        samples, beam = _monitor(profile.duration, nodes, args.json, recording=bool(args.record),
+                                 start_timeout=args.start_timeout)
+    except DemoFailure as exc:
+        failure = exc
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        codes = {}
-        for k, p in procs.items():
-            try:
-                codes[k] = p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                codes[k] = "killed"
-    problems = []
-    for k, f in logs.items():
-        f.seek(0)
-        text = f.read()
-        if codes[k] not in (0, -signal.SIGINT) or "Traceback" in text:
-            problems.append(f"{k} exited with {codes[k]}:\n{text[-2000:]}")
+        for node in nodes.values():          # all asked to stop at once, then waited for
+            if node.exit_code() is None:
+                node.proc.send_signal(signal.SIGINT)
+        codes = {k: node.stop() for k, node in nodes.items()}
+    if failure is not None:
+        report_failure(failure, log_dir)
+        return 1
+    problems = [DemoFailure(f"{k} {'printed a traceback and ' if 'Traceback' in node.log() else ''}ended with "
+                            f"{exit_text(codes[k])}", node)
+                for k, node in nodes.items()
+                if codes[k] not in (0, -signal.SIGINT) or "Traceback" in node.log()]
     rows = step_table(samples, profile.segments(), beam)
     if args.json:
         import json
@@ -172,12 +363,29 @@ def cmd_demo(args) -> int:
                   f"{args.step_duration:g} s step lasts a fraction of a second; use a longer --step-duration)")
         if args.record:
             print(f"recorded to {args.record}")
-    for p in problems:
-        print(p, file=sys.stderr)
-    return 1 if problems or any(math.isnan(r["omega_h"]) for r in rows) else 0
+    if problems:
+        report_failure(problems[0], log_dir)
+        for p in problems[1:]:
+            print(f"  also: {p} (its log: {p.node.log_path})", file=sys.stderr)
+        return 1
+    missing = [f"{r['omega_T'] / RPM:g}" for r in rows if math.isnan(r["omega_h"])]
+    if missing:
+        print(f"error: no state from sim_node arrived in the last quarter of the step(s) at {', '.join(missing)} "
+              f"rpm: a {args.step_duration:g} s step at full speed is over within a few publications; use a "
+              f"longer --step-duration (node logs: {log_dir})", file=sys.stderr)
+        return 1
+    return 0
 
 
-def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False):
+def _check_running(nodes: dict, when: str) -> None:
+    for node in nodes.values():
+        code = node.exit_code()
+        if code is not None:
+            raise DemoFailure(f"{node.name} ended with {exit_text(code)} {when}", node)
+
+
+def _monitor(duration: float, nodes: dict, quiet: bool, recording: bool = False,
+             start_timeout: float = START_TIMEOUT):
     import rclpy
     from nav_msgs.msg import Odometry
     from rclpy.node import Node, NodeNameNonExistentError
@@ -185,8 +393,6 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
-
-    from .. import topics as names
 
     rclpy.init()
     node = Node("flagbot_demo_monitor")
@@ -228,10 +434,9 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
     node.create_subscription(Float64, names.BEAM_OMEGA_T, on_beam("t"), latched)
     from std_srvs.srv import SetBool
     pause = node.create_client(SetBool, "sim_node/" + names.PAUSE.removeprefix("~/"))   # sim_node's own service
-    bar = ProgressBar(duration, label="demo (simulated time)", enabled=not quiet)
-    wall0 = time.monotonic()
+    bar = None
+    status = StatusLine()
     try:
-        # everyone connected before simulated time starts: the command and beam streams, then unpause
         def recorder_ready():
             # sim_node subscribes to beam/ topics only to record them: once it has, the recorder is listening
             if not recording:
@@ -244,34 +449,76 @@ def _monitor(duration: float, procs: dict, quiet: bool, recording: bool = False)
                 return False
             return {"/" + names.BEAM_SPEED, "/" + names.CMD_OMEGA} <= subs
 
-        def ready():
-            return (node.count_publishers(names.CMD_OMEGA) >= 1 and node.count_publishers(names.BEAM_SPEED) >= 1
-                    and node.count_publishers(names.CLOCK) >= 1 and pause.service_is_ready() and recorder_ready())
-        while not ready():
+        # a node is ready when the monitor sees what it offers: the readiness signal, however long it takes
+        offers = {
+            "sim_node": lambda: (node.count_publishers(names.CLOCK) >= 1 and pause.service_is_ready()
+                                 and recorder_ready()),
+            "beam_node": lambda: node.count_publishers(names.BEAM_SPEED) >= 1,
+            "cmd_profile": lambda: node.count_publishers(names.CMD_OMEGA) >= 1,
+        }
+        t0 = time.monotonic()
+        live = {k: Liveness(t0, start_timeout) for k in nodes}
+        ready = {k: False for k in nodes}
+        while True:
             rclpy.spin_once(node, timeout_sec=0.1)
-            if time.monotonic() - wall0 > 60:
-                raise RuntimeError("the nodes did not appear within 60 s")
-            _check_alive(procs)
+            _check_running(nodes, "before it was ready")
+            now = time.monotonic()
+            for k, proc in nodes.items():
+                ready[k] = ready[k] or offers[k]()
+                if not ready[k]:
+                    live[k].observe(now, proc.activity())
+                    why = live[k].verdict(now)
+                    if why is not None:
+                        raise DemoFailure(f"{k} {why}", proc)
+            if all(ready.values()):
+                break
+            status.update("waiting for the nodes: " + "; ".join(
+                f"{k}: {start_phase(k, '' if ready[k] else proc.log(), ready[k])}" for k, proc in nodes.items()))
+        status.close(f"nodes ready after {format_duration(time.monotonic() - t0)}")
         # the monitor sees every node, but each pair of nodes (cmd_profile <- /clock <- sim_node, sim_node <-
         # cmd_omega) discovers the other on its own: give them a moment, or with short steps the run could be
         # over before cmd_profile hears the clock (measured: every command lost in 1 of 3 runs of 4 s steps)
         settle = time.monotonic() + DISCOVERY_SETTLE
         while time.monotonic() < settle:
             rclpy.spin_once(node, timeout_sec=0.05)
-        future = pause.call_async(SetBool.Request(data=False))
-        rclpy.spin_until_future_complete(node, future, timeout_sec=10)
+        _unpause(node, pause, SetBool.Request(data=False), nodes)
+        bar = ProgressBar(duration, label="demo (simulated time)", enabled=not quiet)
+        last_clock, last_advance = state["clock"], time.monotonic()
         while rclpy.ok() and state["clock"] < duration + 0.2:
             rclpy.spin_once(node, timeout_sec=0.05)
             cmd = state["cmd"]
             bar.update(min(state["clock"], duration),
                        f"omega_T = {cmd:.3f} rad/s" if math.isfinite(cmd) else "omega_T = -- (no command yet)")
-            _check_alive(procs)
-            if time.monotonic() - wall0 > 60 + 20 * duration:
-                raise RuntimeError("the simulation did not advance: no /clock from sim_node")
+            _check_running(nodes, "during the run")
+            now = time.monotonic()
+            if state["clock"] != last_clock:
+                last_clock, last_advance = state["clock"], now
+            elif now - last_advance > CLOCK_STALL:
+                raise DemoFailure(f"simulated time has not advanced for {CLOCK_STALL:.0f} s (no new /clock from "
+                                  f"sim_node; stuck at t = {last_clock:.2f} s)", nodes["sim_node"])
     finally:
-        bar.close()
+        status.close()
+        if bar is not None:
+            bar.close()
         node.destroy_node()
         rclpy.shutdown()
     # keep only beam values that belong to the command active when they arrived
     beam_rows = [(t, cmd, v) for (t, cmd, v) in beam if not any(math.isnan(x) for x in v)]
     return samples, beam_rows
+
+
+def _unpause(node, pause, request, nodes: dict, attempt: float = 10.0) -> None:
+    """Start simulated time through sim_node's pause service; a call that got no answer is sent again."""
+    import rclpy
+    t0 = time.monotonic()
+    while True:
+        future = pause.call_async(request)
+        sent = time.monotonic()
+        while not future.done() and time.monotonic() - sent < attempt:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            _check_running(nodes, "before the run started")
+        if future.done() and future.result() is not None:
+            return
+        if time.monotonic() - t0 > CLOCK_STALL:
+            raise DemoFailure(f"sim_node did not answer its pause service (to start simulated time) within "
+                              f"{CLOCK_STALL:.0f} s", nodes["sim_node"])

@@ -470,8 +470,22 @@ def _saved_size(path, fig, dpi) -> tuple[int, int]:
     return int(fig.get_size_inches()[0] * dpi), int(fig.get_size_inches()[1] * dpi)
 
 
+def check_outputs(args) -> None:
+    """--out and --gif can be written (directory there, a format the suffix names), before anything is simulated
+    or read: a bad path is one line and exit 2, not a traceback after the work."""
+    from ..cliutil import check_figure_file, check_out_file
+    check_figure_file(args.out, "--out")
+    if args.gif:
+        gif = check_out_file(args.gif, "--gif")
+        if gif.suffix.lower() != ".gif":
+            raise RenderError(f"--gif {gif}: the animation is a GIF; give a file name ending in .gif")
+        if gif.resolve() == Path(args.out).resolve():
+            raise RenderError(f"--gif {gif}: is the --out file too; give the animation its own name")
+
+
 def cmd_render(args) -> int:
     try:
+        check_outputs(args)
         rows, title = build_rows(args, log=lambda m: print(m, file=sys.stderr, flush=True))
         fig = figure(rows, title=args.title if args.title is not None else title, width=args.width, dpi=args.dpi)
         fig.savefig(args.out, dpi=args.dpi)

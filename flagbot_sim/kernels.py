@@ -1,0 +1,59 @@
+"""The kernels' compile as a visible step of its own: ``flagbot compile``, the first step of ``flagbot demo`` on an
+empty cache, and ``python3 dev.py setup`` (through ``flagbot compile``).
+
+numba compiles the kernels on their first use and keeps the machine code in its on-disk cache, so the compile is
+paid once per machine (per cache directory: ``NUMBA_CACHE_DIR`` moves it). Paid inside something else, it looks
+like a hang (a node that takes a minute to appear, a timed test that fails); paid here, it shows what it is doing
+and for how long. The work itself is :func:`flagbot_sim.physics.warmup.ensure_compiled`; this module only shows it.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+
+from .progress import StatusLine
+
+
+def compile_kernels(stream=None, prefix: str = "") -> tuple[float, bool]:
+    """Compile (empty cache) or load (warm cache) every kernel in this process, showing a status line with the
+    elapsed time on ``stream`` (default stderr) while it runs.
+
+    Returns (seconds taken, whether it compiled: the cache was empty). The status shows what ensure_compiled
+    says it is doing (its first-run notice) once it says it, before that what the cache's state implies."""
+    from .physics import warmup
+    warm = warmup.cache_is_warm()
+    status = StatusLine(stream or sys.stderr)
+    said = []
+    lock = threading.Lock()
+
+    def show(text: str | None = None) -> None:
+        with lock:
+            status.update(status.text if text is None else text)
+
+    def notify(message: str) -> None:
+        said.append(message)
+        show(prefix + message.removeprefix("flagbot_sim: "))
+
+    show(prefix + ("loading the compiled kernels from the cache" if warm else "compiling kernels (first run only)"))
+    done = threading.Event()
+
+    def tick() -> None:             # the elapsed time keeps moving while the compile holds the main thread
+        while not done.wait(0.5):
+            show()
+
+    ticker = threading.Thread(target=tick, name="compile-status", daemon=True)
+    ticker.start()
+    try:
+        seconds = warmup.ensure_compiled(notify)
+    finally:
+        done.set()
+        ticker.join()
+    status.close(None)
+    return seconds, bool(said) or not warm
+
+
+def describe(seconds: float, compiled: bool) -> str:
+    """One line saying what :func:`compile_kernels` did."""
+    if compiled:
+        return f"kernels compiled in {seconds:.1f} s (first run only: later runs load them from the cache)"
+    return f"kernels loaded from the cache in {seconds:.1f} s (nothing to compile)"
