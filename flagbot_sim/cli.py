@@ -17,7 +17,8 @@ import os
 import sys
 import time
 
-from .cliutil import add_scene_arguments, broken_pipe_exit, dumps, finite_text, process_age
+from .cliutil import (add_scene_arguments, add_version_argument, broken_pipe_exit, finite_text, json_output,
+                      process_age)
 from .scene import RPM, SceneError, TimeSection, load_scene
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
@@ -103,7 +104,7 @@ def cmd_run(args) -> int:
     if error:
         out["error"] = error
     if args.json:
-        print(dumps(out))
+        print(json_output(out))
     else:
         print(format_summary(scene, out))
     return 1 if error else 0
@@ -150,7 +151,8 @@ def format_summary(scene, out: dict) -> str:
 
 
 def _command_in(argv: list[str]) -> str | None:
-    """The subcommand named on the command line (the top-level parser has no options but -h)."""
+    """The subcommand named on the command line (the top-level parser's options, -h and --version, take no
+    value)."""
     for item in argv:
         if not item.startswith("-"):
             return item
@@ -187,6 +189,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     argparse's own "invalid choice" message listing everything).
     """
     parser = argparse.ArgumentParser(prog="flagbot", description="flagbot_sim: soft flagellated robot simulator")
+    add_version_argument(parser, "flagbot")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     p = sub.add_parser("run", help="run the DER simulation of a scene and report steady-state outputs")
     add_scene_arguments(p)
@@ -279,12 +282,12 @@ def main(argv: list[str] | None = None) -> int:
     except SceneError as exc:
         print(f"error: {one_line(exc)}", file=sys.stderr)
         return 2
-    except ModuleNotFoundError as exc:      # record, replay, demo without ROS 2: one line naming the [ros] extra
-        from .optional import missing_ros
-        if (missing := missing_ros(exc, f"flagbot {args.command}")) is None:
+    except ImportError as exc:     # an extra not installed (record, replay, demo without ROS 2; --view; dask)
+        from .optional import MissingExtra, missing_ros, report_missing
+        missing = exc if isinstance(exc, MissingExtra) else missing_ros(exc, f"flagbot {args.command}")
+        if missing is None:
             raise
-        print(f"error: {missing}", file=sys.stderr)
-        return 1
+        return report_missing(missing)
     finally:
         if from_command_line and command in FAST_EXIT:
             _fast_exit()

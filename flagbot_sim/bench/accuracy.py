@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cliutil import dumps
+from ..cliutil import dumps, json_output
 from ..physics import Simulation, StepFailed
 from ..scene import PRESETS, load_scene
 
@@ -582,7 +582,7 @@ def run(args) -> int:
     write_csv(out / "accuracy.csv", runs, refs)
     md = markdown(runs, refs)
     (out / "accuracy.md").write_text(md)
-    (out / "accuracy.json").write_text(dumps(to_json(runs, refs), indent=1))
+    (out / "accuracy.json").write_text(json_output(to_json(runs, refs), indent=1))
     print(md)
     print(f"wrote {out}/: accuracy.csv, accuracy.md, accuracy.json, references.json, the figures "
           f"({time.perf_counter() - t0:.0f} s; parts run now: {', '.join(parts)}; kept from before: "

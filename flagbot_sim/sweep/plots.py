@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cliutil import dumps
+from ..cliutil import json_output
 from .store import read_manifest, read_results
 from .task import FRAMEWORK_LABELS, FRAMEWORKS
 
@@ -325,7 +325,7 @@ def make_all(directory: str | Path, dpi: int = 120) -> dict:
             path = directory / name
             fig.savefig(path, dpi=dpi)
             figures.append(str(path))
-    (directory / "summary.json").write_text(dumps(summary, indent=1))     # strict JSON: NaN written as null
+    (directory / "summary.json").write_text(json_output(summary, indent=1))     # strict JSON: NaN written as null
     return {"figures": figures, "summary": summary}
 
 
