@@ -202,7 +202,14 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
     p = sub.add_parser("scenes", help="list built-in scenes and the scene keys with units and ranges")
     p.set_defaults(func=cmd_scenes)
-    if command in ("run", "scenes"):
+    p = sub.add_parser(
+        "completion", help="print a bash or zsh completion script for flagbot and the ROS console scripts",
+        description="Print a static shell completion script for flagbot, sim_node, beam_node, cmd_profile, record "
+                    "and replay, generated from their argument parsers (docs/cli.md). bash: write it to a file and "
+                    "source that from ~/.bashrc; zsh: the same from ~/.zshrc, after compinit.")
+    p.add_argument("shell", choices=("bash", "zsh"), help="the shell to complete in")
+    p.set_defaults(func=cmd_completion)
+    if command in ("run", "scenes", "completion"):
         return parser
     if command is not None and command in COMMANDS:
         wanted = [COMMANDS[command][0]]
@@ -246,6 +253,12 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+def cmd_completion(args) -> int:
+    from .completion import script
+    print(script(args.shell, build_parser("*")), end="")       # every command module imported: the whole tree
+    return 0
+
+
 def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
     """An error message as one line of at most ``limit`` characters."""
     text = " ".join(str(message).split())
@@ -253,7 +266,7 @@ def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
 
 
 #: commands that hold no open resource when they return, so their process may skip the final garbage collection
-FAST_EXIT = frozenset({"run", "scenes", "beam", "sweep-plot"})
+FAST_EXIT = frozenset({"run", "scenes", "beam", "sweep-plot", "completion"})
 
 
 def _fast_exit() -> None:
