@@ -48,7 +48,8 @@ class Node:
 #: argument (a number, a list, a topic, a host) to nothing.
 KINDS = {"scene": "scene", "sources": "scene",          # a built-in scene name, or a scene / recording file
          "overrides": "scene_key",                      # --set section.key=
-         **dict.fromkeys(("out", "output", "record", "plot", "gif", "data", "predict", "bag", "dir", "plot_from"), "file")}
+         **dict.fromkeys(("out", "output", "record", "plot", "gif", "data", "predict", "bag", "dir", "plot_from"),
+                         "file")}
 
 
 def _kind(action: argparse.Action):

@@ -5,7 +5,8 @@ pyplot state), so tests can inspect its lines and labels before anything is save
 
 * ``figure_speed``: v_bar vs omega_T_bar per n, DER and beam (paper Fig. SpeedVSFlagellaNumber a/c/e), with the
   crossover where the larger n overtakes the smaller (paper: C for DER, D for beam theory, here D for NLB w/o
-  head and D' for NLB, each with a marker of its own) and the point of steepest slope of each DER curve (paper: E for n = 2, F for n = 3);
+  head and D' for NLB, each a vertical guide of its own dash, lettered at the top) and the point of steepest
+  slope of each DER curve (paper: E for n = 2, F for n = 3), a star lettered where the letter covers nothing;
 * ``figure_head_spin``: omega_h_bar vs omega_T_bar and omega_h / omega_T (panels b/d);
 * ``figure_length``: v vs omega_T for every flagellum length and n, DER ("D") and beam ("B") with the paper's
   labels such as D130n2 (Fig. SpeedVSFlagellaLengthandNumber), explained in the legend's title;
