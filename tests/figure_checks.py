@@ -118,3 +118,9 @@ def mark_boxes(fig, prefix: str) -> list[tuple[str, Bbox]]:
                 for x, y in zip(ln.get_xdata(), ln.get_ydata()):
                     out.append((gid, marker_box(ax, x, y, ln.get_markersize())))
     return out
+
+
+def outside_figure(fig, boxes) -> list[str]:
+    """The labels of ``boxes`` that do not lie wholly inside the figure (cut off when saved)."""
+    W, H = fig.get_size_inches() * fig.dpi
+    return [what for what, b in boxes if b.x0 < -0.5 or b.y0 < -0.5 or b.x1 > W + 0.5 or b.y1 > H + 0.5]
