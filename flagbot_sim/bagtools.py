@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of, recover
-from .cliutil import check_figure_file, check_out_file, dumps
+from .cliutil import check_figure_file, check_out_file, json_output
 from .ros.bag_args import add_record_arguments, add_replay_arguments, fail as _fail  # ROS-free: no rclpy import
 from .topics import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
 
@@ -286,7 +286,7 @@ def cmd_summary(args) -> int:
     if args.json:
         s = dict(s)
         s.pop("series")
-        print(dumps(s))
+        print(json_output(s))
     else:
         print(format_summary(s))
         if args.plot:

@@ -17,7 +17,8 @@ import os
 import sys
 import time
 
-from .cliutil import add_scene_arguments, broken_pipe_exit, dumps, finite_text, process_age
+from .cliutil import (add_scene_arguments, add_version_argument, broken_pipe_exit, finite_text, json_output,
+                      process_age)
 from .scene import RPM, SceneError, TimeSection, load_scene
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
@@ -103,7 +104,7 @@ def cmd_run(args) -> int:
     if error:
         out["error"] = error
     if args.json:
-        print(dumps(out))
+        print(json_output(out))
     else:
         print(format_summary(scene, out))
     return 1 if error else 0
@@ -150,7 +151,8 @@ def format_summary(scene, out: dict) -> str:
 
 
 def _command_in(argv: list[str]) -> str | None:
-    """The subcommand named on the command line (the top-level parser has no options but -h)."""
+    """The subcommand named on the command line (the top-level parser's options, -h and --version, take no
+    value)."""
     for item in argv:
         if not item.startswith("-"):
             return item
@@ -187,6 +189,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     argparse's own "invalid choice" message listing everything).
     """
     parser = argparse.ArgumentParser(prog="flagbot", description="flagbot_sim: soft flagellated robot simulator")
+    add_version_argument(parser, "flagbot")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     p = sub.add_parser("run", help="run the DER simulation of a scene and report steady-state outputs")
     add_scene_arguments(p)
@@ -207,7 +210,14 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                                    "that the first run, the demo's nodes and timed tests start warm. The cache is "
                                    "numba's: next to the package, or NUMBA_CACHE_DIR.")
     p.set_defaults(func=cmd_compile)
-    if command in ("run", "scenes", "compile"):
+    p = sub.add_parser(
+        "completion", help="print a bash or zsh completion script for flagbot and the ROS console scripts",
+        description="Print a static shell completion script for flagbot, sim_node, beam_node, cmd_profile, record "
+                    "and replay, generated from their argument parsers (docs/cli.md). bash: write it to a file and "
+                    "source that from ~/.bashrc; zsh: the same from ~/.zshrc, after compinit.")
+    p.add_argument("shell", choices=("bash", "zsh"), help="the shell to complete in")
+    p.set_defaults(func=cmd_completion)
+    if command in ("run", "scenes", "compile", "completion"):
         return parser
     if command is not None and command in COMMANDS:
         wanted = [COMMANDS[command][0]]
@@ -262,6 +272,12 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+def cmd_completion(args) -> int:
+    from .completion import script
+    print(script(args.shell, build_parser("*")), end="")       # every command module imported: the whole tree
+    return 0
+
+
 def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
     """An error message as one line of at most ``limit`` characters."""
     text = " ".join(str(message).split())
@@ -269,7 +285,7 @@ def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
 
 
 #: commands that hold no open resource when they return, so their process may skip the final garbage collection
-FAST_EXIT = frozenset({"run", "scenes", "compile", "beam", "sweep-plot"})
+FAST_EXIT = frozenset({"run", "scenes", "compile", "beam", "sweep-plot", "completion"})
 
 
 def _fast_exit() -> None:
@@ -298,12 +314,12 @@ def main(argv: list[str] | None = None) -> int:
     except SceneError as exc:
         print(f"error: {one_line(exc)}", file=sys.stderr)
         return 2
-    except ModuleNotFoundError as exc:      # record, replay, demo without ROS 2: one line naming the [ros] extra
-        from .optional import missing_ros
-        if (missing := missing_ros(exc, f"flagbot {args.command}")) is None:
+    except ImportError as exc:     # an extra not installed (record, replay, demo without ROS 2; --view; dask)
+        from .optional import MissingExtra, missing_ros, report_missing
+        missing = exc if isinstance(exc, MissingExtra) else missing_ros(exc, f"flagbot {args.command}")
+        if missing is None:
             raise
-        print(f"error: {missing}", file=sys.stderr)
-        return 1
+        return report_missing(missing)
     finally:
         if from_command_line and command in FAST_EXIT:
             _fast_exit()

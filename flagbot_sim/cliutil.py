@@ -1,7 +1,8 @@
-"""Helpers shared by every command module: scene arguments and strict JSON output.
+"""Helpers shared by every command module: scene arguments, strict JSON output, the version.
 
-A leaf module: it imports nothing from flagbot_sim but :mod:`flagbot_sim.scene`, so any command module (beam,
-sweep, bag tools, ...) can use it without importing :mod:`flagbot_sim.cli` back.
+A leaf module: it imports nothing from flagbot_sim but :mod:`flagbot_sim.scene` (and the package's
+``__version__``), so any command module (beam, sweep, bag tools, ...) can use it without importing
+:mod:`flagbot_sim.cli` back.
 """
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import math
 import os
 import time
 from typing import Any
+
+from . import __version__
 
 
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:
@@ -62,6 +65,34 @@ def finite_text(value, spec: str, missing: str = "--") -> str:
 def dumps(obj: Any, **kwargs) -> str:
     """Strict JSON (RFC 8259): numpy values converted, NaN/Inf written as null, never as bare NaN/Infinity."""
     return json.dumps(finite_or_none(obj), default=json_default, allow_nan=False, **kwargs)
+
+
+def version_text(prog: str) -> str:
+    """What ``PROG --version`` prints: ``flagbot (flagbot_sim) 0.1.0`` (every console script says the same)."""
+    return f"{prog} (flagbot_sim) {__version__}"
+
+
+def add_version_argument(p: argparse.ArgumentParser, prog: str) -> None:
+    """``--version`` on a parser: print :func:`version_text` and exit 0 (argparse acts on it before it checks the
+    required arguments, so ``cmd_profile --version`` needs no profile)."""
+    p.add_argument("--version", action="version", version=version_text(prog),
+                   help="print the version of flagbot_sim and exit")
+
+
+def with_version(obj: Any) -> Any:
+    """A JSON result with ``"version"`` (flagbot_sim's) as its first key; a list of results gets it in each
+    object, so that a list stays a list for the programs that read it."""
+    if isinstance(obj, dict):
+        return {"version": __version__, **{k: v for k, v in obj.items() if k != "version"}}
+    if isinstance(obj, (list, tuple)):
+        return [with_version(x) if isinstance(x, dict) else x for x in obj]
+    return obj
+
+
+def json_output(obj: Any, **kwargs) -> str:
+    """The JSON a command prints or writes for its user (``--json``, ``summary.json``, ...): strict JSON
+    (:func:`dumps`) with the version of flagbot_sim that made it (:func:`with_version`)."""
+    return dumps(with_version(obj), **kwargs)
 
 
 #: when this module was imported: the fallback origin of ``startup_seconds`` where /proc is not available

@@ -1,5 +1,7 @@
 """Console-script targets of the ROS processes (setup.py ``entry_points``): without ROS 2 each prints one line
-naming the ``[ros]`` extra (:func:`flagbot_sim.optional.missing_ros`) instead of a traceback.
+naming the ``[ros]`` extra (:func:`flagbot_sim.optional.missing_ros`) instead of a traceback, and exits with
+:data:`flagbot_sim.optional.EXIT_CODE`. ``--version`` is answered here, before ROS 2 is imported, so that it
+works (and is quick) on a machine without ROS 2 too.
 
 Kept apart from :mod:`flagbot_sim.optional` so that that module stays a leaf: these targets load the ROS nodes by
 name, and a module that may be imported by those nodes (the live view, through ``optional.require``) must not
@@ -10,21 +12,39 @@ from __future__ import annotations
 import importlib
 import sys
 
-from .cliutil import broken_pipe_exit
-from .optional import missing_ros
+from .cliutil import broken_pipe_exit, version_text
+from .optional import EXIT_CODE, MissingExtra, missing_ros, report_missing
+
+
+def own_arguments(argv: list[str]) -> list[str]:
+    """The program's own arguments: ``argv`` (without argv[0]) less its ``--ros-args ... [--]`` sections, by the
+    rule ROS 2 documents for them. (The nodes themselves use rclpy's ``remove_ros_args``; this runs before rclpy
+    is imported, to answer ``--version`` without ROS 2.)"""
+    own, in_ros = [], False
+    for a in argv:
+        if a == "--ros-args":
+            in_ros = True
+        elif in_ros and a == "--":
+            in_ros = False
+        elif not in_ros:
+            own.append(a)
+    return own
 
 
 def ros_entry(module: str, prog: str):
-    """A console-script ``main`` for a ROS process: without ROS 2 it prints one line and exits 1 instead of a
-    traceback; otherwise it runs ``module.main``."""
+    """A console-script ``main`` for a ROS process: ``--version`` prints :func:`~flagbot_sim.cliutil.version_text`;
+    without ROS 2 it prints one line and exits :data:`~flagbot_sim.optional.EXIT_CODE` instead of a traceback;
+    otherwise it runs ``module.main``."""
     def main() -> int:
+        if "--version" in own_arguments(sys.argv[1:]):
+            print(version_text(prog))
+            return 0
         try:
             mod = importlib.import_module(module)
         except ModuleNotFoundError as exc:
             if (missing := missing_ros(exc, prog)) is None:
                 raise
-            print(missing, file=sys.stderr)
-            return 1
+            return report_missing(missing)
         except ImportError as exc:
             if not _from_ros(exc):
                 raise
@@ -32,11 +52,13 @@ def ros_entry(module: str, prog: str):
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             print(f"error: {prog}: ROS 2 is installed but cannot be loaded: {first} (see the README's Install "
                   "section: the ROS 2 wheels set their library path when Python starts)", file=sys.stderr)
-            return 1
+            return EXIT_CODE                    # the [ros] extra is there but unusable: as if it were missing
         try:
             return mod.main()
         except BrokenPipeError:                 # sim_node --help | head -3
             return broken_pipe_exit()
+        except MissingExtra as exc:             # replay --view without the [view] extra
+            return report_missing(exc)
     main.__name__ = main.__qualname__ = prog
     return main
 

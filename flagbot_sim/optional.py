@@ -9,6 +9,11 @@
   over it.
 - ``dask``: sweeps on a Dask distributed cluster; ``bench``: the PyElastica comparison; ``view``: Foxglove.
 
+A command that needs a missing extra does nothing and exits with :data:`EXIT_CODE` (2, the code of every
+refusal made before any work: bad arguments, a bad scene, an output path that cannot be written), after one line
+``error: <purpose> needs <what>, which <python> cannot import: pip install 'flagbot_sim[<extra>]'``; every
+command and console script, for every extra (docs/cli.md).
+
 Leaf module: imports nothing from the package, and the extras only when asked.
 """
 from __future__ import annotations
@@ -31,6 +36,10 @@ ROS_MODULES = frozenset({"rclpy", "rcl_interfaces", "builtin_interfaces", "ament
                          "diagnostic_msgs", "std_srvs"})
 
 
+#: exit code of a command that needs an extra which is not installed (the same for every extra and command)
+EXIT_CODE = 2
+
+
 class MissingExtra(ImportError):
     """An optional part is not installed; ``str()`` is the one-line message naming the extra."""
 
@@ -51,6 +60,12 @@ def require(extra: str, purpose: str, module: str | None = None) -> ModuleType:
         if exc.name is None or exc.name.split(".")[0] != module.split(".")[0]:
             raise
         raise MissingExtra(extra, purpose) from None
+
+
+def report_missing(exc: MissingExtra) -> int:
+    """Print ``exc`` as the one ``error:`` line on stderr; the exit code to end with (:data:`EXIT_CODE`)."""
+    print(f"error: {exc}", file=sys.stderr)
+    return EXIT_CODE
 
 
 def available(extra: str) -> bool:

@@ -227,7 +227,7 @@ def format_report(res: Resimulation, path) -> str:
 def cmd_resimulate(args) -> int:
     """``flagbot replay --resimulate BAG [--json] [--namespace NS]``: the report and its verdict; exit 0 when the
     recording is reproduced, 1 when it is not, 2 when it cannot be re-simulated."""
-    from .cliutil import dumps
+    from .cliutil import json_output
     from .progress import ProgressBar
     try:
         bar = ProgressBar(100.0, label="re-simulating", unit="%", enabled=not args.json)
@@ -237,7 +237,7 @@ def cmd_resimulate(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print(dumps({"bag": str(args.bag), **res.to_dict()}))
+        print(json_output({"bag": str(args.bag), **res.to_dict()}))
     else:
         print(format_report(res, args.bag))
     return 0 if res.reproduced else 1

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import sys
 
-from .cliutil import add_scene_arguments, dumps, process_age
+from .cliutil import add_scene_arguments, json_output, process_age
 from .scene import RPM, SceneError, load_scene
 
 
@@ -101,7 +101,7 @@ def cmd_steady(args) -> int:
     rpms = parse_rpm_list(args.omega_rpm) if args.omega_rpm is not None else None
     rows = solve_scene(scene, rpms, stability=not args.no_stability)
     if args.json:
-        print(dumps(rows if len(rows) > 1 else rows[0]))
+        print(json_output(rows if len(rows) > 1 else rows[0]))
     else:
         print("\n".join(format_row(scene, r) for r in rows))
     failed = any("error" in r for r in rows)

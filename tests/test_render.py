@@ -135,3 +135,89 @@ def test_bad_render_arguments_are_refused_with_a_reason(tmp_path, capsys, argv, 
     err = capsys.readouterr().err
     assert message in err and err.startswith("error: ") and err.count("\n") == 1
     assert not (tmp_path / "x.png").exists()
+
+
+# ------------------------------------------------------------------------------------------------ the paper's layout
+def test_the_paper_layout_has_a_row_per_design_with_both_n_in_each_panel(tmp_path):
+    """Paper Fig. 1: row (a) is design 1, row (b) design 2, panels (a1), (a2), ... each with the side views of
+    n = 2 and n = 3 at one time, drawn from the simulated state to one scale; no label on another, on a panel,
+    or off the figure."""
+    from figure_checks import label_boxes, outside_figure, overlapping
+    times = [0.05, 0.12]
+    rows, radii = [], {}
+    for name in ("design1", "design2"):
+        for n in (2, 3):
+            scene = load_scene(name, [f"robot.n_flagella={n}"])
+            rows.append(simulate_row(scene, times=times))
+            radii[name] = (scene.head.radius, scene.flagellum.radius)
+    assert [r.group for r in rows] == ["design1", "design1", "design2", "design2"]
+    fig = render.paper_figure(rows, title="test", width=12.0, dpi=80)
+    fig.draw_without_rendering()
+    by_group = {0: rows[:2], 1: rows[2:]}
+    seen = set()
+    scales = set()
+    for gi, ri, ci, ax in fig.flagbot_panels:
+        g = by_group[gi][ri].snapshots[ci]
+        R_h, r0 = radii[("design1", "design2")[gi]]
+        (head,) = artists(ax, "head")
+        assert head.get_radius() == R_h                          # the row's design, as the paper's caption says
+        np.testing.assert_allclose(head.center, project(g.head_centre, "side")[0], rtol=0, atol=1e-15)
+        flags = [a for a in ax.lines if (a.get_gid() or "").startswith("flagellum/")]
+        assert len(flags) == (2, 3)[ri]                          # n = 2 above n = 3
+        for i in range(len(flags)):
+            (line,) = artists(ax, f"flagellum/{i}")
+            np.testing.assert_allclose([line.get_xdata()[-1], line.get_ydata()[-1]],
+                                       project(g.flagella[i][-1], "side")[0], rtol=0, atol=1e-12)
+        scales.add(round(points_per_metre(ax)[0], 6))
+        seen.add((gi, ri, ci))
+    assert seen == {(gi, ri, ci) for gi in (0, 1) for ri in (0, 1) for ci in (0, 1)}
+    assert len(scales) == 1, "every panel on one scale"
+    titles = {(gi, ci): ax.get_title(loc="left") for gi, ri, ci, ax in fig.flagbot_panels if ri == 0}
+    assert titles == {(0, 0): "(a1)  t = 0.05 s", (0, 1): "(a2)  t = 0.12 s",
+                      (1, 0): "(b1)  t = 0.05 s", (1, 1): "(b2)  t = 0.12 s"}
+    headers = [t.get_text() for t in fig.texts if t.get_text().startswith(("(a)", "(b)"))]
+    assert headers[0].startswith("(a)  design 1") and headers[1].startswith("(b)  design 2")
+    boxes = label_boxes(fig)
+    r = render_of(fig)
+    panels = [(f"panel {gi}{ri}{ci}", ax.get_window_extent(r)) for gi, ri, ci, ax in fig.flagbot_panels]
+    assert overlapping(boxes + panels) == [] and outside_figure(fig, boxes) == []
+
+
+def render_of(fig):
+    from flagbot_sim.plotlabels import renderer_of
+    return renderer_of(fig)
+
+
+def test_the_per_design_layout_numbers_its_panels_without_the_papers_letters():
+    from figure_checks import label_boxes, outside_figure, overlapping
+    scene = load_scene("design2", ["robot.n_flagella=2"])
+    rows = [simulate_row(scene, times=[0.05, 0.1]), simulate_row(load_scene("design2"), times=[0.05, 0.1])]
+    fig = figure(rows, width=12.0, dpi=80)
+    titles = [ax.get_title(loc="left") for _, _, ax, _ in fig.flagbot_axes]
+    assert [t.split()[0] for t in titles] == ["(1)", "(2)", "(1)", "(2)"]
+    boxes = label_boxes(fig)
+    assert overlapping(boxes) == [] and outside_figure(fig, boxes) == []
+
+
+def test_rows_of_one_design_share_their_times_once_steady(tmp_path, capsys):
+    """--layout paper: n = 2 and n = 3 are run up to their steady states side by side, then drawn at the same
+    times: from the later steady time, one turn of the slower flagella in --snapshots steps."""
+    import argparse
+    args = argparse.Namespace(sources=["design2"], overrides=[], n=None, times=None, snapshots=4, duration=None,
+                              frames=0, gif=None, namespace=None, layout="paper")
+    rows, title = render.build_rows(args)
+    t2, t3 = ([g.t for g in r.snapshots] for r in rows)
+    assert t2 == t3 and title.startswith("Fig. 1, a row per design: design 2")
+    period = max(2 * math.pi / abs(r.values["omega_t"]) for r in rows)
+    assert np.diff(t2) == pytest.approx([period / 4] * 3, abs=0.011)     # each taken at the nearest step (dt 0.01 s)
+    assert all(r.steady for r in rows)
+    assert render.common_times([type("S", (), {"time": 3.0})(), type("S", (), {"time": 5.0})()],
+                               [{"omega_t": 2.0}, {"omega_t": -1.0}], 2) == pytest.approx([5.0, 5.0 + math.pi])
+    # and the command: a PNG of the paper's layout from two designs
+    out = tmp_path / "fig1.png"
+    assert cli.main(["render", "design1", "design2", "--layout", "paper", "--times", "0.05,0.1", "--out", str(out),
+                     "--dpi", "50"]) == 0
+    text = capsys.readouterr().out
+    assert "  design 1, n = 3: " in text and "  design 2, n = 2: " in text
+    with Image.open(out) as im:
+        assert im.format == "PNG" and im.size[0] == 16 * 50

@@ -84,14 +84,14 @@ def test_figures_hold_every_series_with_the_csv_numbers(sweep_dir):
     speed = lines_by_label(figure_speed(sel, L))
     for fw in ("DER", "NLB w/o head", "NLB"):
         for n in (2, 3):
-            ln = speed[f"{fw} n={n}"]
+            ln = speed[f"{fw} n={n}" + (" (pale band)" if fw == "NLB w/o head" else "")]
             fwk = {"DER": "der", "NLB w/o head": "nlb-nohead", "NLB": "nlb"}[fw]
             ref = sorted((r["omega_T_bar"], r["v_bar"]) for r in sel if r["framework"] == fwk and r["n"] == n)
             assert len(ref) == 3
             np.testing.assert_array_equal(ln.get_xdata(), [p[0] for p in ref])
             np.testing.assert_array_equal(ln.get_ydata(), [p[1] for p in ref])
     head = lines_by_label(figure_head_spin(sel, L))
-    assert {"DER n=2", "DER n=3", "NLB n=2", "NLB w/o head n=3"} <= set(head)
+    assert {"DER n=2", "DER n=3", "NLB n=2", "NLB w/o head n=3 (pale band)"} <= set(head)
     der2 = sorted((r["omega_T_bar"], r["omega_h_bar"]) for r in sel if r["framework"] == "der" and r["n"] == 2)
     ax_h, ax_share = figure_head_spin(sel, L).axes
     ln = {l.get_label(): l for l in ax_h.get_lines()}["DER n=2"]
@@ -99,9 +99,10 @@ def test_figures_hold_every_series_with_the_csv_numbers(sweep_dir):
     share = {l.get_label(): l for l in ax_share.get_lines()}["DER n=2"]
     np.testing.assert_allclose(share.get_ydata(), [p[1] / p[0] for p in der2], rtol=1e-15)
     defl = lines_by_label(figure_deflection(sel, L))
-    assert {f"{fw} n={n}" for fw in ("LB", "NLB w/o head", "NLB") for n in (2, 3)} == set(defl)
+    looks = {"LB": " (wide band)", "NLB w/o head": " (band)", "NLB": ""}
+    assert {f"{fw} n={n}{looks[fw]}" for fw in looks for n in (2, 3)} == set(defl)
     lb = sorted((r["omega_T_bar"], r["w_tip_over_L"]) for r in sel if r["framework"] == "lb" and r["n"] == 3)
-    np.testing.assert_array_equal(defl["LB n=3"].get_ydata(), [p[1] for p in lb])
+    np.testing.assert_array_equal(defl["LB n=3 (wide band)"].get_ydata(), [p[1] for p in lb])
     length = lines_by_label(figure_length(rows))
     assert set(length) == {f"{c}{L}n{n}" for c in "DB" for L in (50, 60) for n in (2, 3)}
     d60 = sorted((r["omega_T_rpm"], 1e3 * r["v"]) for r in rows if r["framework"] == "der" and r["n"] == 3
@@ -118,7 +119,10 @@ def test_crossover_marks_where_three_flagella_overtake_two():
     marks = [l for l in fig.axes[0].get_lines() if l.get_label().startswith(("C:", "D:"))]
     assert len(marks) == 1                              # only DER crosses; beam n=3 stays slower throughout
     assert marks[0].get_label().startswith("C: DER crossover, n=3 overtakes n=2")
-    assert marks[0].get_xdata()[0] == pytest.approx(5.0) and marks[0].get_ydata()[0] == pytest.approx(5.0)
+    # a vertical guide at the crossover (both curves pass 5 there), its letter at the top of the axes
+    assert marks[0].get_gid() == "crossover/C" and list(marks[0].get_xdata()) == pytest.approx([5.0, 5.0])
+    (letter,) = [t for t in fig.axes[0].texts if t.get_text() == "C"]
+    assert letter.xy[0] == pytest.approx(5.0)
     s = summarise(rows)
     assert s["crossover"]["der"]["omega_T_bar"] == pytest.approx([5.0])
     assert s["crossover"]["nlb-nohead"]["omega_T_bar"] == []
@@ -140,7 +144,7 @@ def test_steepest_slope_point_is_marked_only_inside_the_range():
     assert not steepest_slope(x, x ** 2)["interior"]
     labels = list(lines_by_label(figure_speed(rows)))
     e = [lb for lb in labels if lb.startswith("E:")]
-    assert e == ["E: DER n=2 steepest slope at omega_T_bar=4"] and not any(lb.startswith("F:") for lb in labels)
+    assert e == [r"E: DER n=2 steepest slope at $\bar\omega_T$ = 4"] and not any(lb.startswith("F:") for lb in labels)
 
 
 def test_failed_points_are_left_out_of_the_curves():
@@ -152,30 +156,75 @@ def test_failed_points_are_left_out_of_the_curves():
 
 
 # ---------------------------------------------------------------- figures a person can read
-def test_every_mark_has_a_letter_of_its_own_and_every_panel_a_key():
-    # both beam regimes cross as well as DER: three crossover marks, three letters, three looks
+def test_every_mark_has_a_letter_of_its_own_and_every_figure_a_key():
+    # both beam regimes cross as well as DER: three crossover guides, three letters, three looks
     x = np.arange(0.0, 11.0)
     rows = []
     for fw, at in (("der", 5.0), ("nlb-nohead", 3.0), ("nlb", 7.0)):
         rows += [row(fw, 2, xi, xi) for xi in x] + [row(fw, 3, xi, 2 * xi - at) for xi in x]
-    ax = figure_speed(rows).axes[0]
+    fig = figure_speed(rows)
+    ax = fig.axes[0]
     marks = [l for l in ax.get_lines() if "crossover" in l.get_label()]
     letters = [l.get_label().split(":")[0] for l in marks]
     assert sorted(letters) == ["C", "D", "D'"]
-    looks = {(l.get_marker(), l.get_markerfacecolor()) for l in marks}
+    looks = {str(l.get_linestyle()) for l in marks}
     assert len(looks) == 3
-    legend = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert all(l.get_label() in legend for l in marks)
-    # the letters are written beside their marks too
-    assert sorted(t.get_text() for t in ax.texts if "crossover" not in t.get_text()) == ["C", "D", "D'"]
-    # head spin: both panels carry a legend naming their curves
-    for panel in figure_head_spin(rows).axes:
-        texts = [t.get_text() for t in panel.get_legend().get_texts()]
-        assert "DER n=2" in texts and "NLB n=3" in texts
+    (legend,) = fig.legends                             # one legend, outside the axes
+    texts = [t.get_text() for t in legend.get_texts()]
+    assert all(l.get_label() in texts for l in marks)
+    # the letters are written at their guides too
+    assert sorted(t.get_text() for t in ax.texts) == ["C", "D", "D'"]
+    # head spin: one legend names the curves of both panels, and says how NLB and NLB w/o head are told apart
+    (legend,) = figure_head_spin(rows).legends
+    texts = [t.get_text() for t in legend.get_texts()]
+    assert "DER n=2" in texts and "NLB n=3" in texts and "NLB w/o head n=2 (pale band)" in texts
+    assert "pale" in legend.get_title().get_text()
     # the length figure's codes are explained in the legend's title
     length = figure_length([{**r, "L": 0.089} for r in rows])
     key = length.axes[0].get_legend().get_title().get_text()
     assert "D = DER" in key and "B = NLB" in key and "D89n2: DER, L = 89 mm, n = 2" in key
+
+
+SHIPPED = ("design1", "design2", "design1_length", "design2_length")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_shipped_sweeps_figures_hide_nothing(name):
+    """The figures of the sweeps under docs/figures, as a reader sees them: every curve at least half visible
+    (NLB and NLB w/o head agree to ~1e-4 in omega_h: the old dotted-on-dashed drawing hid one entirely), no two
+    labels on one another, no letter on a star and no two stars on one another (design 2's C and E were)."""
+    from figure_checks import hidden_curves, label_boxes, mark_boxes, overlapping
+    rows = read_results(ROOT / "docs" / "figures" / name)
+    figs = [figure_length(rows)]
+    for L in sorted({r["L"] for r in rows}):
+        sel = [r for r in rows if r["L"] == L]
+        figs += [figure_speed(sel, L), figure_head_spin(sel, L), figure_deflection(sel, L)]
+    for fig in figs:
+        assert hidden_curves(fig) == []
+        labels, stars = label_boxes(fig), mark_boxes(fig, "slope/")
+        assert overlapping(labels + stars) == []
+    # design 2's point C (DER crossover, 20.7) and point E (steepest slope, 19.6) are 1.1 apart: both shown
+    if name == "design2":
+        ax = figs[1].axes[0]
+        assert {l.get_gid() for l in ax.lines} >= {"crossover/C", "slope/E", "slope/F"}
+        assert {t.get_text() for t in ax.texts} >= {"C", "E", "F"}
+
+
+def test_the_old_drawing_would_have_failed_the_visibility_check():
+    """The check can fail: NLB dotted over NLB w/o head dashed, same width (the old head-spin figure)."""
+    from matplotlib.figure import Figure
+    from figure_checks import hidden_curves
+    fig = Figure()
+    ax = fig.add_subplot()
+    x = np.linspace(0, 1, 30)
+    ax.plot(x, x, ls="--", lw=1.5, label="NLB w/o head")
+    ax.plot(x, x + 1e-6, ls=":", lw=1.5, label="NLB")
+    assert [h[0] for h in hidden_curves(fig)] == ["'': NLB w/o head"]
+    # and two letters on one spot are seen as overlapping
+    from figure_checks import label_boxes, overlapping
+    ax.annotate("C", (0.5, 0.5))
+    ax.annotate("E", (0.5, 0.5))
+    assert overlapping(label_boxes(fig)) == [("text 'C'", "text 'E'")]
 
 
 def test_summary_json_is_strict_where_a_ratio_is_undefined(tmp_path):

@@ -42,13 +42,13 @@ def register(subparsers) -> None:
 
 
 def cmd_beam(args) -> int:
-    from ..cliutil import dumps
+    from ..cliutil import json_output
     scene = load_scene(args.scene, args.overrides)
     params = BeamParams.for_free_robot(scene)
     rpms = parse_rpm_list(args.omega_rpm) if args.omega_rpm is not None else [scene.motor.omega_rpm]
     results = solve_balance_curve(params, [w * RPM for w in rpms], args.regime, raise_on_failure=False)
     if args.json:
-        print(dumps([r.to_dict() for r in results]))            # strict JSON: a non-finite value is null
+        print(json_output([r.to_dict() for r in results]))            # strict JSON: a non-finite value is null
     else:
         print(format_table(scene.scene.name, params, args.regime, results))
     return 0 if all(r.converged for r in results) else 1

@@ -17,6 +17,9 @@ def accuracy_arguments(ap) -> None:
                                                          "speeds (about a minute; the whole study ~12 min)")
     ap.add_argument("--repeat", type=int, default=3, help="presets: timed runs per point (median wall time)")
     ap.add_argument("--out", default="out/accuracy", help="directory for the CSV, PNGs, markdown and references")
+    ap.add_argument("--plot-from", default=None, metavar="CSV",
+                    help="run nothing: redraw the figures from an accuracy.csv into --out (e.g. --plot-from "
+                         "docs/accuracy.csv --out docs/figures)")
 
 
 def speed_arguments(ap) -> None:

@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cliutil import dumps, make_out_dir
+from ..cliutil import dumps, json_output, make_out_dir
 from ..physics import Simulation, StepFailed
-from ..scene import PRESETS, load_scene
+from ..scene import PRESETS, SceneError, load_scene
 
 #: design 2's flagellum, medium and plate on the clamped scene (its default is design 1's)
 D2_CLAMPED = ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03"]
@@ -50,6 +50,12 @@ CASES = {
     "design2_n2": ("design2", ["robot.n_flagella=2", "motor.omega_rpm=100"]),
     "design2_n3": ("design2", ["robot.n_flagella=3", "motor.omega_rpm=100"]),
 }
+#: what each case is, as a figure's panel says it
+CASE_TITLES = {"clamped1": "design 1: clamped flagellum", "clamped2": "design 2: clamped flagellum",
+               "design1_n2": "design 1: free robot, n = 2", "design1_n3": "design 1: free robot, n = 3",
+               "design2_n2": "design 2: free robot, n = 2", "design2_n3": "design 2: free robot, n = 3"}
+#: the integrators' names as a reader knows them
+INTEGRATOR_TITLES = {"implicit_euler": "implicit Euler", "bdf2": "BDF2"}
 CLAMPED = ("clamped1", "clamped2")
 FREE = ("design1_n2", "design1_n3", "design2_n2", "design2_n3")
 INTEGRATORS = ("implicit_euler", "bdf2")
@@ -337,16 +343,45 @@ def write_csv(path: Path, runs: list[Run], refs: References) -> None:
                         *[""] * (2 * len(CSV_ERRORS)), "", "", ""])
 
 
+def read_csv(path: Path) -> list[Run]:
+    """The runs of an ``accuracy.csv`` (:func:`write_csv`'s rows; the reference rows are left out), with what the
+    figures need: ``flagbot bench accuracy --plot-from CSV`` redraws them without running anything."""
+    def num(text: str) -> float:
+        return float(text) if text else math.nan
+    runs = []
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            if row["part"].startswith("reference:"):
+                continue
+            r = Run(row["part"], row["case"], float(row["rpm"]), row["integrator"], float(row["dt_s"]),
+                    float(row["rtol"]), float(row["edge_m"]), row["preset"], sim_time=num(row["sim_time_s"]),
+                    wall=float(row["wall_s"]), steps=int(row["steps"]), newton=int(row["newton_iterations"]),
+                    steady=row["steady"] == "True", last_dt=num(row["last_dt_s"]), error=row["error"])
+            out = {k: float(row[k]) for k in CSV_OUTPUTS if row[k]}
+            if "tip_x" in out:
+                out["tip"] = [out.pop("tip_x"), out.pop("tip_y"), out.pop("tip_z")]
+            r.outputs = out
+            r.time_err = {k: float(row[f"time_err_{k}"]) for k in CSV_ERRORS if row[f"time_err_{k}"]}
+            r.total_err = {k: float(row[f"total_err_{k}"]) for k in CSV_ERRORS if row[f"total_err_{k}"]}
+            runs.append(r)
+    return runs
+
+
 COLORS = {"implicit_euler": "C0", "bdf2": "C1"}
 MARKERS = {16.44e-3: "v", 8.22e-3: "s", 4.11e-3: "o", 2.055e-3: "D"}
 
 
-def plot_front(runs: list[Run], png: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def front_figure(runs: list[Run]):
+    """The front: error vs wall time, a column per case (titled by what it is), time error above, total error
+    below; the presets' names at their runs, each placed where it covers no other (plotlabels)."""
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    from ..plotlabels import marker_box, place_labels
     cases = list(dict.fromkeys(r.case for r in runs))
-    fig, axes = plt.subplots(2, len(cases), figsize=(3.6 * len(cases), 7.4), squeeze=False)
+    fig = Figure(figsize=(3.6 * len(cases), 7.6))
+    axes = fig.subplots(2, len(cases), squeeze=False)
+    tags = {}                                  # axes -> [(preset, (wall, error))]
     for j, case in enumerate(cases):
         rc = [r for r in runs if r.case == case]
         for i, key in enumerate(("max_time_err", "max_total_err")):
@@ -367,21 +402,16 @@ def plot_front(runs: list[Run], png: Path) -> None:
                 f = pareto([r for r in rc if r.integrator == integ], key)
                 ax.loglog([r.wall for r in f], [getattr(r, key) for r in f], style, color=COLORS[integ], lw=1.6,
                           label=f"{'implicit Euler' if integ == 'implicit_euler' else 'BDF2 (fixed + rtol)'} front")
-            for r in rc:
-                tag = _preset_tag(r)
-                if tag and math.isfinite(getattr(r, key)):
-                    ax.annotate(tag, (r.wall, getattr(r, key)), fontsize=7, xytext=(4, -8),
-                                textcoords="offset points", color="k")
+            tags[ax] = [(tag, (r.wall, getattr(r, key))) for r in rc
+                        if (tag := _preset_tag(r)) and math.isfinite(getattr(r, key))]
             ax.grid(alpha=0.3, which="both")
             if i == 0:
-                ax.set_title(case)
+                ax.set_title(CASE_TITLES.get(case, case), fontsize=10)
             else:
                 ax.set_xlabel("wall time from rest to steady state (s)")
-        axes[0][j].axhline(1e-2, color="0.5", lw=0.5)
-        axes[1][j].axhline(1e-2, color="0.5", lw=0.5)
+            ax.axhline(1e-2, color="0.5", lw=0.5)
     axes[0][0].set_ylabel("time error (vs the steady solver,\nsame edges): largest relative")
     axes[1][0].set_ylabel("total error (vs rod BVP / converged\nsteady solution): largest relative")
-    from matplotlib.lines import Line2D
     handles = [Line2D([], [], color="C0", marker="o", mfc="none", lw=0.6, label="implicit Euler, fixed dt"),
                Line2D([], [], color="C1", marker="o", mfc="none", lw=0.6, label="BDF2, fixed dt"),
                Line2D([], [], color="C3", marker="o", ls=":", label="BDF2, rtol 1e-2 / 1e-3 / 1e-4"),
@@ -390,11 +420,17 @@ def plot_front(runs: list[Run], png: Path) -> None:
     handles += [Line2D([], [], color="0.3", marker=m, ls="none", mfc="none", label=f"edge {1e3 * e:.3g} mm")
                 for e, m in MARKERS.items() if any(r.edge == e for r in runs)]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=7, frameon=False)
-    fig.suptitle("Accuracy vs wall time, 100 rpm: implicit Euler (paper) and BDF2 "
-                 "(labels: the 'paper' and 'default' presets' discretisations)")
+    fig.suptitle("Accuracy vs wall time, 100 rpm: implicit Euler (the paper's) and BDF2; a name marks the run "
+                 "with a preset's discretisation (scene.preset)")
     fig.tight_layout(rect=(0, 0.04, 1, 0.97))
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
+    for ax, items in tags.items():              # the layout is final: the names are measured where they will be
+        place_labels(ax, items, avoid=[marker_box(ax, x, y, 6.0) for _, (x, y) in items], fontsize=7,
+                     distances=(12.0, 22.0, 34.0))
+    return fig
+
+
+def plot_front(runs: list[Run], png: Path) -> None:
+    front_figure(runs).savefig(png, dpi=110)
 
 
 def _preset_tag(r: Run) -> str:
@@ -409,11 +445,11 @@ def _preset_tag(r: Run) -> str:
     return ""
 
 
-def plot_calibration(runs: list[Run], png: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+def calibration_figure(runs: list[Run]):
+    """Achieved time error / requested rtol vs speed, a panel per integrator."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(15, 4.4), layout="constrained")       # room for each panel's legend beside it
+    axes = fig.subplots(1, 2)
     for ax, integ in zip(axes, INTEGRATORS[::-1]):
         for k, rt in enumerate(sorted({r.rtol for r in runs if r.integrator == integ}, reverse=True)):
             for case, mk in zip(CLAMPED, ("o", "s")):
@@ -421,21 +457,25 @@ def plot_calibration(runs: list[Run], png: Path) -> None:
                             key=lambda r: r.rpm)
                 if rs:
                     ax.semilogx([r.rpm for r in rs], [r.max_time_err / rt for r in rs], "-", marker=mk,
-                                color=f"C{k}", ms=4, label=f"rtol {rt:g}, {case}")
+                                color=f"C{k}", ms=4, label=f"rtol {rt:g}, {CASE_TITLES[case]}")
             rf = [r for r in runs if r.integrator == integ and r.rtol == rt and not is_clamped(r.case)]
             if rf:
+                # the four free-robot cases all run at 100 rpm: spread about it so that they do not hide each other
                 ax.semilogx([r.rpm * (0.8 + 0.1 * i) for i, r in enumerate(rf)], [r.max_time_err / rt for r in rf],
-                            "^", color=f"C{k}", ms=5, ls="none", label=f"rtol {rt:g}, free robot (4 cases)")
+                            "^", color=f"C{k}", ms=5, ls="none",
+                            label=f"rtol {rt:g}, free robot (4 cases at 100 rpm, spread)")
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_ylim(0, 1.2)
         ax.set_xlabel("clamp / motor speed (rpm)")
-        ax.set_title(f"{integ}: achieved time error / requested rtol")
+        ax.set_title(f"{INTEGRATOR_TITLES[integ]}: achieved time error / requested rtol")
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=6.5)
+        ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     axes[0].set_ylabel("largest relative error of the steady outputs / rtol")
-    fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
+    return fig
+
+
+def plot_calibration(runs: list[Run], png: Path) -> None:
+    calibration_figure(runs).savefig(png, dpi=110)
 
 
 def _pct(x: float) -> str:
@@ -547,7 +587,28 @@ def main(argv=None) -> int:
 PARTS = ("front", "calibration", "presets")
 
 
+def replot(csv_path: Path, out: Path) -> list[Path]:
+    """``--plot-from``: the figures of the runs in ``csv_path``, written into ``out``; the files written."""
+    from ..cliutil import make_out_dir
+    if not csv_path.is_file():
+        raise SceneError(f"--plot-from {csv_path}: no such file")
+    runs = read_csv(csv_path)
+    out = make_out_dir(out)
+    written = []
+    for part, plot, name in (("front", plot_front, "accuracy_vs_time.png"),
+                             ("calibration", plot_calibration, "accuracy_calibration.png")):
+        sel = [r for r in runs if r.part == part]
+        if sel:
+            plot(sel, out / name)
+            written.append(out / name)
+    return written
+
+
 def run(args) -> int:
+    if args.plot_from:
+        written = replot(Path(args.plot_from), Path(args.out))
+        print("wrote " + (", ".join(map(str, written)) or "nothing (no front or calibration runs in the CSV)"))
+        return 0
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
     bad = [c for c in cases if c not in CASES]
     if bad:
@@ -581,7 +642,7 @@ def run(args) -> int:
     write_csv(out / "accuracy.csv", runs, refs)
     md = markdown(runs, refs)
     (out / "accuracy.md").write_text(md)
-    (out / "accuracy.json").write_text(dumps(to_json(runs, refs), indent=1))
+    (out / "accuracy.json").write_text(json_output(to_json(runs, refs), indent=1))
     print(md)
     print(f"wrote {out}/: accuracy.csv, accuracy.md, accuracy.json, references.json, the figures "
           f"({time.perf_counter() - t0:.0f} s; parts run now: {', '.join(parts)}; kept from before: "

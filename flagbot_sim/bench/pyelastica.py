@@ -34,7 +34,6 @@ PyElastica is a benchmark-only dependency: pip install 'flagbot_sim[bench]' (or 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -43,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cliutil import json_output
 from ..optional import MissingExtra, available, require
 from ..reference import from_scene
 from ..scene import load_scene
@@ -572,7 +572,7 @@ def main(argv=None) -> int:
     if a.json:
         payload = {k: v for k, v in out.items() if k not in ("rows", "best_der", "best_elastica", "best_steady")}
         payload["rows"] = [dict(asdict(r), us_per_step=r.us_per_step) for r in out["rows"]]
-        Path(a.json).write_text(json.dumps(payload, indent=2, default=str))
+        Path(a.json).write_text(json_output(payload, indent=2))     # strict: a NaN is null
     return 0
 
 

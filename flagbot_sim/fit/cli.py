@@ -6,7 +6,7 @@ import signal
 import sys
 from pathlib import Path
 
-from ..cliutil import add_scene_arguments, dumps, make_out_dir
+from ..cliutil import add_scene_arguments, json_output, make_out_dir
 from ..scene import RPM, load_scene
 from ..sweep.engines import ENGINES, default_workers
 from .data import _short_key
@@ -262,9 +262,9 @@ def _cmd_fit(args) -> int:
     res["predict"] = pred
     res["files"] = files
     res["engine"] = {"engine": args.engine, "workers": engine.workers, "tasks": engine.tasks_run}
-    Path(files["json"]).write_text(dumps(res, indent=1))
+    Path(files["json"]).write_text(json_output(res, indent=1))
     if args.json:
-        print(dumps(res))
+        print(json_output(res))
     else:
         print(format_fit(res, pred))
         print("wrote " + ", ".join(files.values()))
@@ -340,9 +340,9 @@ def _cmd_optimize(args) -> int:
     res["files"] = files
     res["engine"] = {"engine": args.engine, "workers": engine.workers, "tasks": engine.tasks_run}
     res["rpm_per_rad_s"] = 1.0 / RPM
-    Path(files["json"]).write_text(dumps(res, indent=1))
+    Path(files["json"]).write_text(json_output(res, indent=1))
     if args.json:
-        print(dumps(res))
+        print(json_output(res))
     else:
         print(format_search(res, args.top))
         print("wrote " + ", ".join(files.values()))

@@ -26,6 +26,9 @@ class Engine:
             raise SweepError("--scheduler is only used with --engine dask")
         if workers is not None and workers < 1:
             raise SweepError(f"--workers must be at least 1, got {workers}")
+        if engine == "dask":
+            from ..optional import require
+            require("dask", "--engine dask")    # before any work; MissingExtra: reported by the command's entry
         self.engine, self.scheduler = engine, scheduler
         self.workers = 1 if engine == "serial" else (workers or default_workers())
         self._pool = None
@@ -75,11 +78,6 @@ class Engine:
 
     def _map_dask(self, fn, tasks):
         if self._client is None:
-            from ..optional import MissingExtra, require
-            try:
-                require("dask", "--engine dask")
-            except MissingExtra as exc:
-                raise SweepError(str(exc)) from None
             import logging
 
             from dask.distributed import Client, LocalCluster

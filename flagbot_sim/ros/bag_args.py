@@ -1,9 +1,9 @@
-"""Command-line arguments of the recorder (:mod:`.recorder`) and the replayer (:mod:`.replay`), and the frame of
-their console scripts.
+"""Command-line arguments of the recorder (:mod:`.recorder`), the replayer (:mod:`.replay`) and the command
+profile (:mod:`.cmd_profile`), and the frame of their console scripts.
 
-Kept out of those two modules because they import rclpy at load time, and ``flagbot``'s parser (which offers
-``flagbot record`` and ``flagbot replay`` with these same arguments) must not: building it for ``flagbot run``
-would cost the rclpy import. Both the console scripts and :mod:`flagbot_sim.bagtools` take the arguments from
+Kept out of those modules because they import rclpy at load time, and ``flagbot``'s parser (which offers
+``flagbot record`` and ``flagbot replay`` with these same arguments) and ``flagbot completion`` must not:
+building it for ``flagbot run`` would cost the rclpy import. Both the console scripts and :mod:`flagbot_sim.bagtools` take the arguments from
 here; nothing here imports either of them back.
 """
 from __future__ import annotations
@@ -13,6 +13,7 @@ import sys
 from typing import Callable
 
 from ..bag import BagError
+from ..cliutil import add_version_argument
 
 
 def add_record_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,10 +61,34 @@ def add_replay_arguments(p: argparse.ArgumentParser) -> None:
     add_view_arguments(p, pacing=False)
 
 
+def add_profile_arguments(ap: argparse.ArgumentParser) -> None:
+    """Arguments of ``cmd_profile`` (:mod:`.cmd_profile`, which imports rclpy at load time)."""
+    ap.add_argument("kind", choices=["constant", "steps", "ramp", "square"])
+    ap.add_argument("args", nargs="+", help="the profile's values (see above)")
+    ap.add_argument("--rpm", action="store_true", help="values are in rpm (default rad/s)")
+    ap.add_argument("--rate", type=float, default=10.0, help="publication rate in Hz (default 10)")
+    ap.add_argument("--sim-time", action="store_true", help="time the profile on /clock (use_sim_time)")
+    ap.add_argument("--t0", type=float, default=None,
+                    help="clock time at which the profile starts (default: the first tick)")
+    ap.add_argument("--loop", action="store_true", help="repeat the profile")
+    ap.add_argument("--exit-at-end", action="store_true", help="exit when the profile ends")
+    ap.add_argument("--quiet", action="store_true", help="do not print the segments as they start")
+
+
 def fail(exc: Exception) -> int:
     """A known error as one line on stderr; exit code 2."""
     print(f"error: {exc}", file=sys.stderr)
     return 2
+
+
+def script_parser(prog: str, description: str, add_arguments: Callable[[argparse.ArgumentParser], None],
+                  **kwargs) -> argparse.ArgumentParser:
+    """The parser of the console script ``prog`` (``record``, ``replay``, ``cmd_profile``): its arguments and
+    ``--version``. Also what ``flagbot completion`` reads (flagbot_sim/completion.py)."""
+    parser = argparse.ArgumentParser(prog=prog, description=description, **kwargs)
+    add_arguments(parser)
+    add_version_argument(parser, prog)
+    return parser
 
 
 def console_main(prog: str, description: str, add_arguments: Callable[[argparse.ArgumentParser], None],
@@ -72,8 +97,7 @@ def console_main(prog: str, description: str, add_arguments: Callable[[argparse.
     to ``run(args, ros_args=...)``."""
     from rclpy.utilities import remove_ros_args
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog=prog, description=description)
-    add_arguments(parser)
+    parser = script_parser(prog, description, add_arguments)
     args = parser.parse_args(remove_ros_args([prog] + argv)[1:])
     try:
         return run(args, ros_args=[prog] + argv)

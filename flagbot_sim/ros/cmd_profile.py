@@ -22,23 +22,13 @@ from std_msgs.msg import Float64
 from ..motor_profile import ProfileError, parse
 from ..scene import RPM
 from .. import topics as names
+from .bag_args import add_profile_arguments, script_parser
 from .runtime import RosArgsError, run_node, user_args
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="cmd_profile", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("kind", choices=["constant", "steps", "ramp", "square"])
-    ap.add_argument("args", nargs="+", help="the profile's values (see above)")
-    ap.add_argument("--rpm", action="store_true", help="values are in rpm (default rad/s)")
-    ap.add_argument("--rate", type=float, default=10.0, help="publication rate in Hz (default 10)")
-    ap.add_argument("--sim-time", action="store_true", help="time the profile on /clock (use_sim_time)")
-    ap.add_argument("--t0", type=float, default=None,
-                    help="clock time at which the profile starts (default: the first tick)")
-    ap.add_argument("--loop", action="store_true", help="repeat the profile")
-    ap.add_argument("--exit-at-end", action="store_true", help="exit when the profile ends")
-    ap.add_argument("--quiet", action="store_true", help="do not print the segments as they start")
-    return ap
+    return script_parser("cmd_profile", __doc__, add_profile_arguments,
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
 
 
 class ProfileNode(Node):

@@ -354,8 +354,8 @@ def _demo(args) -> int:
                 if codes[k] not in (0, -signal.SIGINT) or "Traceback" in node.log()]
     rows = step_table(samples, profile.segments(), beam)
     if args.json:
-        import json
-        print(json.dumps({"scene": args.scene, "n_flagella": n, "regime": args.regime, "steps": rows}))
+        from ..cliutil import json_output
+        print(json_output({"scene": args.scene, "n_flagella": n, "regime": args.regime, "steps": rows}))
     else:
         print(format_table(rows, scene.scene.name, n, args.regime))
         if any(math.isnan(r[k]) for r in rows for k in ("omega_h", "beam_omega_h")):

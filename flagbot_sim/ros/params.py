@@ -114,7 +114,9 @@ def command_refusal(omega: float, max_omega: float) -> str | None:
 
 
 def help_text(prog: str, summary: str, specs: list[ParamSpec], topics: str = "") -> str:
-    lines = [f"usage: {prog} [--ros-args -p NAME:=VALUE ...]", "", summary, "", "parameters:"]
+    lines = [f"usage: {prog} [-h] [--version] [--ros-args -p NAME:=VALUE ...]", "", summary, "",
+             "options:", "  -h, --help   show this help message and exit",
+             "  --version    print the version of flagbot_sim and exit", "", "parameters:"]
     lines += [s.help_line() for s in specs]
     if topics:
         lines += ["", topics]

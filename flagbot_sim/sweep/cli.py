@@ -100,6 +100,9 @@ def cmd_sweep(args) -> int:
 
     base = load_scene(args.scene, args.overrides)
     grid, points = validate(base, parse_grid(args.grid), base.overrides)     # base.overrides: the parsed --set
+    if args.engine == "dask":           # refused before the sweep directory is made (MissingExtra, exit 2)
+        from ..optional import require
+        require("dask", "flagbot sweep --engine dask")
     settings = SteadySettings(t_max=args.t_max,
                               window=args.window if args.window is not None else base.observe.steady_window,
                               rtol=args.rtol if args.rtol is not None else base.observe.steady_rtol,

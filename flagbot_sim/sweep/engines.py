@@ -88,11 +88,8 @@ def run_local(tasks: list[dict], workers: int) -> Iterator[dict]:
 
 
 def run_dask(tasks: list[dict], workers: int, scheduler: str | None) -> Iterator[dict]:
-    from ..optional import MissingExtra, require
-    try:
-        require("dask", "flagbot sweep --engine dask")
-    except MissingExtra as exc:
-        raise SweepError(str(exc)) from None
+    from ..optional import require
+    require("dask", "flagbot sweep --engine dask")      # MissingExtra: reported by the command's entry point
     from dask.distributed import Client, LocalCluster, as_completed
     from distributed import KilledWorker
     import logging

@@ -5,7 +5,8 @@ pyplot state), so tests can inspect its lines and labels before anything is save
 
 * ``figure_speed``: v_bar vs omega_T_bar per n, DER and beam (paper Fig. SpeedVSFlagellaNumber a/c/e), with the
   crossover where the larger n overtakes the smaller (paper: C for DER, D for beam theory, here D for NLB w/o
-  head and D' for NLB, each with a marker of its own) and the point of steepest slope of each DER curve (paper: E for n = 2, F for n = 3);
+  head and D' for NLB, each a vertical guide of its own dash, lettered at the top) and the point of steepest
+  slope of each DER curve (paper: E for n = 2, F for n = 3), a star lettered where the letter covers nothing;
 * ``figure_head_spin``: omega_h_bar vs omega_T_bar and omega_h / omega_T (panels b/d);
 * ``figure_length``: v vs omega_T for every flagellum length and n, DER ("D") and beam ("B") with the paper's
   labels such as D130n2 (Fig. SpeedVSFlagellaLengthandNumber), explained in the legend's title;
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cliutil import dumps
+from ..cliutil import json_output
 from .store import read_manifest, read_results
 from .task import FRAMEWORK_LABELS, FRAMEWORKS
 
@@ -30,14 +31,21 @@ PLOT_KEYS = ("robot.n_flagella", "motor.omega_rpm", "flagellum.length")
 SPEED_REGIMES = ("nlb-nohead", "nlb")
 #: the beam regime of the length figure (the paper: "DER and NLB")
 LENGTH_REGIME = "nlb"
-STYLE = {"der": dict(ls="-", marker="o", ms=3.5), "nlb-nohead": dict(ls="--", marker=None),
-         "nlb": dict(ls=":", marker=None), "lb": dict(ls="-.", marker=None)}
-#: the crossover mark of each framework: its letter (the paper's C for DER, D for its beam curves, NLB w/o head)
-#: and a marker of its own, so that no two different marks share a letter or a look
-CROSSOVER_MARKS = {"der": ("C", dict(marker="X", ms=11, mfc="gold")),
-                   "nlb-nohead": ("D", dict(marker="P", ms=11, mfc="lightskyblue")),
-                   "nlb": ("D'", dict(marker="h", ms=10, mfc="white")),
-                   "lb": ("D''", dict(marker="s", ms=8, mfc="lightgray"))}
+#: how each framework's curves are drawn. NLB and NLB w/o head agree to ~1e-4 in omega_h and a few % in v (the head
+#: changes little there), so a line over the other would hide it: NLB w/o head is a wide pale band underneath and
+#: NLB a dotted line on it, so that where they agree the dotted line runs inside the band. DER is on top, thinner
+#: than the dots: where it meets NLB (design 1's head spin, ~97 % of omega_T in both) the dots show on its sides
+STYLE = {"der": dict(ls="-", marker="o", ms=3.5, lw=1.3, zorder=4),
+         "nlb-nohead": dict(ls="-", marker=None, lw=6.0, alpha=0.3, solid_capstyle="butt", zorder=2),
+         "nlb": dict(ls=":", marker=None, lw=2.4, zorder=3),
+         "lb": dict(ls="-.", marker=None, lw=1.2, zorder=3)}
+#: the legend's words for the looks of STYLE that are not plain lines
+LOOK_NOTE = {"nlb-nohead": " (pale band)"}
+#: the crossover guide of each framework: its letter (the paper's C for DER, D for its beam curves, NLB w/o head)
+#: and the dash of its vertical line, so that no two different guides share a letter or a look
+CROSSOVER_MARKS = {"der": ("C", "-"), "nlb-nohead": ("D", "--"), "nlb": ("D'", ":"), "lb": ("D''", "-.")}
+#: the steepest-slope stars (the paper's E, F, ...): marker size in points
+STAR_SIZE = 12.0
 N_COLOURS = ["tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown"]
 
 
@@ -112,14 +120,21 @@ def _label(fw: str, n: int) -> str:
     return f"{FRAMEWORK_LABELS[fw]} n={n}"
 
 
+def _legend_label(fw: str, n: int) -> str:
+    """A curve's legend text: its name and, for a look that is not a plain line, what it looks like."""
+    return _label(fw, n) + LOOK_NOTE.get(fw, "")
+
+
 def _colour(ns: list[int], n: int) -> str:
     return N_COLOURS[ns.index(n) % len(N_COLOURS)]
 
 
 # ---------------------------------------------------------------- figures
 def _new_figure(ncols: int = 1, width: float = 6.4):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     fig = Figure(figsize=(width * ncols, 4.6), layout="constrained")
+    FigureCanvasAgg(fig)                 # a renderer to measure labels with (plotlabels), before saving
     axes = [fig.add_subplot(1, ncols, i + 1) for i in range(ncols)]
     return fig, axes
 
@@ -133,38 +148,90 @@ def _finish(ax, xlabel: str, ylabel: str, title: str, legend: dict | None = None
     ax.legend(fontsize=7, **(legend or {}))
 
 
+def _outside_legend(fig, ax, title: str = "") -> None:
+    """One legend for the figure, outside the axes on the right: it covers no curve, mark or letter."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right upper", fontsize=7, title=title or None, title_fontsize=7,
+               alignment="left")
+
+
+def _beam_note(fws) -> str:
+    """The legend's title when NLB and NLB w/o head are both drawn: how to tell them apart where they agree."""
+    if "nlb" in fws and "nlb-nohead" in fws:
+        return "NLB (dotted) runs inside the pale\nNLB w/o head band where they agree"
+    return ""
+
+
+def _guide_letters(ax, guides: list[tuple[str, float]]) -> list:
+    """The letter of each vertical guide at the top of the axes, each one step lower than the one before it
+    while they would overlap (the renderer measures them)."""
+    from matplotlib.transforms import blended_transform_factory
+
+    from ..plotlabels import renderer_of, text_box
+    r = renderer_of(ax.figure)
+    at = blended_transform_factory(ax.transData, ax.transAxes)
+    placed, boxes = [], []
+    for name, x in sorted(guides, key=lambda g: g[1]):
+        for level in range(6):
+            t = ax.annotate(name, (x, 1.0), xycoords=at, xytext=(3, -4 - 13 * level), textcoords="offset points",
+                            ha="left", va="top", fontsize=9, zorder=6,
+                            bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
+            t.set_in_layout(False)
+            box = text_box(t, r)
+            if not any(box.overlaps(b) for b in boxes) or level == 5:
+                break
+            t.remove()
+        placed.append(t)
+        boxes.append(box)
+    return placed
+
+
 def figure_speed(rows: list[dict], L: float | None = None, regimes=SPEED_REGIMES, title: str = ""):
-    fig, (ax,) = _new_figure()
+    """v_bar vs omega_T_bar: each (framework, n) curve; a vertical guide at each crossover (C, D, D': where the
+    larger n overtakes the smaller), its letter at the top of the axes; a star at each DER curve's steepest slope
+    (E, F, ...), its letter beside it where it overlaps nothing (plotlabels); the legend outside the axes."""
+    fig, (ax,) = _new_figure(width=9.0)
     ns = n_values(rows)
     fws = [fw for fw in ("der", *regimes) if fw in frameworks_in(rows)]
     for fw in fws:
         for n in ns:
             x, y = curve(rows, fw, n, L)
             if len(x):
-                ax.plot(x, y, color=_colour(ns, n), label=_label(fw, n), **STYLE[fw])
+                ax.plot(x, y, color=_colour(ns, n), label=_legend_label(fw, n), **STYLE[fw])
+    guides, stars = [], []
     pair = pair_of_n(ns)
     if pair:
         for fw in fws:
             xs, y_lo, y_hi = common(rows, fw, pair[0], fw, pair[1], L)
-            name, look = CROSSOVER_MARKS[fw]
+            name, dash = CROSSOVER_MARKS[fw]
             for xc in crossovers(xs, y_lo, y_hi):
-                yc = float(np.interp(xc, xs, y_hi))
-                ax.plot([xc], [yc], ls="none", color="k", **look,
-                        label=f"{name}: {FRAMEWORK_LABELS[fw]} crossover, n={pair[1]} overtakes n={pair[0]} "
-                              f"at omega_T_bar={xc:.3g}")
-                ax.annotate(name, (xc, yc), textcoords="offset points", xytext=(6, -12))
+                ax.axvline(xc, color="0.3", lw=0.9, ls=dash, zorder=1, gid=f"crossover/{name}",
+                           label=f"{name}: {FRAMEWORK_LABELS[fw]} crossover, n={pair[1]} overtakes n={pair[0]} "
+                                 rf"at $\bar\omega_T$ = {xc:.3g}")
+                guides.append((name, xc))
     for n, name in zip(ns, "EFGHIJ"):
         st = steepest_slope(*curve(rows, "der", n, L))
         if st and st["interior"]:
-            ax.plot([st["x"]], [st["y"]], ls="none", marker="*", ms=14, color=_colour(ns, n), mec="k",
-                    label=f"{name}: DER n={n} steepest slope at omega_T_bar={st['x']:.3g}")
-            ax.annotate(name, (st["x"], st["y"]), textcoords="offset points", xytext=(-12, 6))
-    _finish(ax, r"$\bar\omega_T = \omega_T \eta_p L^4 / EI$", r"$\bar v = v \eta_p L^3 / EI$",
-            title or "speed vs motor speed")
+            ax.plot([st["x"]], [st["y"]], ls="none", marker="*", ms=STAR_SIZE, color=_colour(ns, n), mec="k",
+                    zorder=5, gid=f"slope/{name}",
+                    label=f"{name}: DER n={n} steepest slope at " rf"$\bar\omega_T$ = {st['x']:.3g}")
+            stars.append((name, (st["x"], st["y"])))
+    ax.set_xlabel(r"$\bar\omega_T = \omega_T \eta_p L^4 / EI$")
+    ax.set_ylabel(r"$\bar v = v \eta_p L^3 / EI$")
+    ax.set_title(title or "speed vs motor speed")
+    ax.grid(alpha=0.3)
+    _outside_legend(fig, ax, _beam_note(fws))
+    fig.draw_without_rendering()           # the layout is final: the letters are measured where they will be
+    from ..plotlabels import marker_box, place_labels, renderer_of, text_box
+    letters = _guide_letters(ax, guides)
+    r = renderer_of(fig)
+    avoid = [marker_box(ax, x, y, STAR_SIZE) for _, (x, y) in stars] + [text_box(t, r) for t in letters]
+    place_labels(ax, stars, avoid=avoid, fontsize=9)
     return fig
 
 
 def figure_head_spin(rows: list[dict], L: float | None = None, regimes=SPEED_REGIMES, title: str = ""):
+    """omega_h_bar vs omega_T_bar (left) and omega_h / omega_T (right), one legend for both, outside."""
     fig, (ax, ax2) = _new_figure(2, width=5.4)
     ns = n_values(rows)
     fws = [fw for fw in ("der", *regimes) if fw in frameworks_in(rows)]
@@ -172,21 +239,21 @@ def figure_head_spin(rows: list[dict], L: float | None = None, regimes=SPEED_REG
         for n in ns:
             x, y = curve(rows, fw, n, L, y="omega_h_bar")
             if len(x):
-                ax.plot(x, y, color=_colour(ns, n), label=_label(fw, n), **STYLE[fw])
+                ax.plot(x, y, color=_colour(ns, n), label=_legend_label(fw, n), **STYLE[fw])
                 keep = x != 0
-                ax2.plot(x[keep], y[keep] / x[keep], color=_colour(ns, n), label=_label(fw, n), **STYLE[fw])
+                ax2.plot(x[keep], y[keep] / x[keep], color=_colour(ns, n), label=_legend_label(fw, n), **STYLE[fw])
     xmax = max((r["omega_T_bar"] for r in rows if math.isfinite(r["omega_T_bar"])), default=1.0)
-    ax.plot([0, xmax], [0, xmax], color="0.6", lw=0.8, label=r"$\omega_h = \omega_T$")
+    ax.plot([0, xmax], [0, xmax], color="0.6", lw=0.8, zorder=1, label=r"$\omega_h = \omega_T$")
     ax.set_xlabel(r"$\bar\omega_T$")
     ax.set_ylabel(r"$\bar\omega_h = \omega_h \eta_p L^4 / EI$")
     ax2.set_xlabel(r"$\bar\omega_T$")
     ax2.set_ylabel(r"$\omega_h / \omega_T$")
-    ax2.set_ylim(0, 1.05)
+    ax2.margins(y=0.15)        # the data's own range: design 1's shares differ by a few % near 0.95
     ax.set_title(title or "head spin")
     ax2.set_title("share of the motor speed taken by the head")
     for a in (ax, ax2):
         a.grid(alpha=0.3)
-        a.legend(fontsize=7)
+    _outside_legend(fig, ax, _beam_note(fws))
     return fig
 
 
@@ -217,20 +284,26 @@ def figure_length(rows: list[dict], regime: str = LENGTH_REGIME, title: str = ""
 
 
 def figure_deflection(rows: list[dict], L: float | None = None, title: str = ""):
-    fig, (ax,) = _new_figure()
+    """w(L)/L vs omega_T_bar, LB, NLB w/o head and NLB. The three nearly coincide (paper Fig. comparison), so they
+    are nested: LB a wide pale band at the bottom, NLB w/o head a narrower one on it, NLB a line on top; where
+    they agree, each shows inside the one below. n by dash (solid n = 2, dashed n = 3, ...)."""
+    fig, (ax,) = _new_figure(width=7.4)
     ns = n_values(rows)
-    colours = {"lb": "tab:gray", "nlb-nohead": "tab:blue", "nlb": "tab:red"}
+    looks = {"lb": dict(color="0.45", lw=7.0, alpha=0.3, zorder=1, solid_capstyle="butt"),
+             "nlb-nohead": dict(color="tab:blue", lw=3.5, alpha=0.55, zorder=2, solid_capstyle="butt"),
+             "nlb": dict(color="tab:red", lw=1.3, zorder=3)}
+    notes = {"lb": " (wide band)", "nlb-nohead": " (band)", "nlb": ""}
     lines = {n: ls for n, ls in zip(ns, ["-", "--", ":", "-."] * 3)}
     for fw in REGIMES:
         for n in ns:
             x, y = curve(rows, fw, n, L, y="w_tip_over_L")
             if len(x):
-                # NLB w/o head is drawn wide and pale underneath: it nearly coincides with NLB (paper Fig.
-                # comparison), and should stay visible where it does
-                wide = fw == "nlb-nohead"
-                ax.plot(x, y, color=colours[fw], ls=lines[n], lw=4 if wide else 1.5, alpha=0.45 if wide else 1.0,
-                        label=_label(fw, n))
-    _finish(ax, r"$\bar\omega_T$", r"tip deflection $w(L)/L$", title or "beam tip deflection in the three regimes")
+                ax.plot(x, y, ls=lines[n], label=_label(fw, n) + notes[fw], **looks[fw])
+    ax.set_xlabel(r"$\bar\omega_T$")
+    ax.set_ylabel(r"tip deflection $w(L)/L$")
+    ax.set_title(title or "beam tip deflection in the three regimes")
+    ax.grid(alpha=0.3)
+    _outside_legend(fig, ax, "nested where they agree:\nNLB inside NLB w/o head inside LB")
     return fig
 
 
@@ -325,7 +398,7 @@ def make_all(directory: str | Path, dpi: int = 120) -> dict:
             path = directory / name
             fig.savefig(path, dpi=dpi)
             figures.append(str(path))
-    (directory / "summary.json").write_text(dumps(summary, indent=1))     # strict JSON: NaN written as null
+    (directory / "summary.json").write_text(json_output(summary, indent=1))     # strict JSON: NaN written as null
     return {"figures": figures, "summary": summary}
 
 

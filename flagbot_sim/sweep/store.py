@@ -17,7 +17,7 @@ import os
 import time
 from pathlib import Path
 
-from ..cliutil import dumps, make_out_dir
+from ..cliutil import dumps, json_output, make_out_dir
 from .grid import Point, SweepError
 
 FORMAT = "flagbot_sim sweep 2"
@@ -143,7 +143,7 @@ class SweepStore:
                                  "use another --out")
             tmp = manifest_path.with_suffix(".tmp")
             try:
-                tmp.write_text(dumps({**identity, **_jsonable(extra), "columns": self.columns,
+                tmp.write_text(json_output({**identity, **_jsonable(extra), "columns": self.columns,
                                       "created": time.time()}, indent=1))
                 os.replace(tmp, manifest_path)
                 (self.dir / "scene.toml").write_text(scene_toml)

@@ -8,19 +8,19 @@ from __future__ import annotations
 import sys
 import time
 
-from .live import LAYOUT_FILE
+from .live import LAYOUT_FILE, TOPICS
 
 
 def open_live_view(args):
-    """The LiveView the arguments ask for (``--view``), or None; a missing extra or a taken port ends the command
-    with a one-line error (exit 1)."""
+    """The LiveView the arguments ask for (``--view``), or None. A taken port ends the command with a one-line
+    error (exit 1); a missing ``[view]`` extra raises MissingExtra, which the command's entry point reports with
+    the exit code of every missing extra (:data:`flagbot_sim.optional.EXIT_CODE`)."""
     if not getattr(args, "view", False):
         return None
-    from ..optional import MissingExtra
     from .live import LiveView, ViewError
     try:
         view = LiveView(host=args.view_host, port=args.view_port)
-    except (MissingExtra, ViewError) as exc:
+    except ViewError as exc:
         raise SystemExit(f"error: {exc}") from None
     print(f"live view: {view.url} (Foxglove app: Open connection -> Foxglove WebSocket; layout: Layouts -> Import "
           f"from file -> {LAYOUT_FILE})", file=sys.stderr, flush=True)
@@ -28,12 +28,27 @@ def open_live_view(args):
 
 
 def wait_for_client(view, seconds: float) -> bool:
-    """Wait up to ``seconds`` (wall) until a client subscribes; True if one did."""
+    """Wait up to ``seconds`` (wall) until a client subscribes to one of the view's channels; True if one did."""
     end = time.monotonic() + max(0.0, seconds)
     while not view.has_clients():
         if time.monotonic() >= end:
             return False
         time.sleep(0.02)
+    return True
+
+
+def no_subscriber_note(seconds: float, then: str) -> str:
+    """What ``--view-wait`` says when it ran out: it waits for a subscription, not a connection (the SDK's server
+    does not report connections: an app that is connected but shows none of the channels is not seen)."""
+    return (f"live view: no client subscribed to {', '.join(TOPICS)} within {seconds:g} s (a connected app "
+            f"counts once one of its panels shows one of them); {then} anyway")
+
+
+def wait_or_note(view, seconds: float, then: str) -> bool:
+    """``--view-wait``: wait up to ``seconds`` for a subscriber; print :func:`no_subscriber_note` if none came."""
+    if seconds > 0 and not wait_for_client(view, seconds):
+        print(no_subscriber_note(seconds, then), file=sys.stderr, flush=True)
+        return False
     return True
 
 
@@ -57,8 +72,7 @@ class RunView:
         return None if view is None else cls(view, rtf=args.view_rtf, wait=args.view_wait)
 
     def start(self, sim) -> None:
-        if self.wait > 0 and not wait_for_client(self.view, self.wait):
-            print(f"live view: no client after {self.wait:g} s; running anyway", file=sys.stderr, flush=True)
+        wait_or_note(self.view, self.wait, "running")
         self.view.update(sim, force=True)
         self._wall0, self._t0 = time.monotonic(), sim.time
 

@@ -1,9 +1,11 @@
 """``flagbot render``: the paper's Fig. 1 (snapshots of the robot's shape) from a recording or a simulated scene.
 
-Layout (paper Fig. simulationSnapshots: rows of snapshots for n = 2 and n = 3, a black 2 cm bar): one row per
-source (a recording, or a scene simulated on the fly once per ``--n`` value), one column per snapshot time; each
-column has a side view (world x to the right, z up, seen from -y) above an end view (seen from behind the tail,
-looking along +x: -y to the right, z up). Everything is drawn to one scale, in metres of the world frame: the head
+Two layouts (``--layout``). ``paper`` is the paper's Fig. simulationSnapshots: a row per design, (a) design 1 and
+(b) design 2 as its caption says, each panel (a1), (a2), ... the side views of that design's n = 2 and n = 3 at one
+time (:func:`paper_figure`). ``per-design`` (the default, :func:`figure`): one row per source (a recording, or a
+scene simulated on the fly once per ``--n`` value), one column per snapshot time, panels numbered (1), (2), ...;
+each column has a side view (world x to the right, z up, seen from -y) above an end view (seen from behind the
+tail, looking along +x: -y to the right, z up). Everything is drawn to one scale, in metres of the world frame: the head
 as a disc of radius R_h (a sphere projects to one) with its black spin marker when on the visible side, the plate
 as the outline of its disc, each flagellum as a stroke through its nodes whose width is the flagellum's true
 diameter 2 r0, flagellum 0's tip red (the experiments marked one flagellum red). A dashed line marks where the
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +61,8 @@ class Row:
     frames: list = field(default_factory=list)   # RobotGeometry for the animation
     note: str = ""
     source: str = ""                  # the recording's file name (shown in the caption)
+    group: str = ""                   # the design (scene name) it belongs to: a row of the paper's layout
+    scene: object = None              # its Scene, when known (the paper layout's row header gives its sizes)
 
     def caption(self) -> str:
         v = self.values
@@ -87,42 +92,79 @@ def _window(times: list[float], count: int) -> list[float]:
 
 
 # ------------------------------------------------------------------------------------------------ sources
-def simulate_row(scene, *, times: list[float] | None = None, snapshots: int = DEFAULT_SNAPSHOTS,
-                 duration: float | None = None, frames: int = 0, label: str | None = None,
-                 progress=None) -> Row:
-    """Simulate ``scene`` and take its shape at ``times`` (default: one revolution after the steady state is
-    reached, or after ``duration`` s, the scene's ``time.duration`` by default); ``frames`` > 0 also collects that
-    many equally spaced frames over the same window for an animation."""
+def run_up(scene, *, duration: float | None = None, progress=None):
+    """A simulation of ``scene`` run until steady, or for ``duration`` s (the scene's ``time.duration`` by
+    default): (sim, its summary)."""
     from ..physics import Simulation, StepFailed
     sim = Simulation(scene)
-    label = label or f"n = {scene.robot.n_flagella}"
     try:
-        if times is None:
-            t_max = scene.time.duration if duration is None else duration
-            sim.run_until_steady(t_max, callback=progress)
-            out = sim.summary()
-            times = revolution_times(sim.time, out["omega_t"], snapshots)
-        else:
-            times = sorted(float(t) for t in times)
-            if times[0] < 0:
-                raise RenderError(f"--times must be >= 0 s, got {times[0]}")
-            out = None
-        wanted = sorted(set(times) | set(_window(times, frames) if frames else ()))
-        taken: dict[float, RobotGeometry] = {}
-        dt = scene.time.dt
+        sim.run_until_steady(scene.time.duration if duration is None else duration, callback=progress)
+    except StepFailed as exc:
+        raise RenderError(f"n = {scene.robot.n_flagella}: the simulation failed at t = {sim.time:.3f} s: "
+                          f"{exc}") from None
+    return sim, sim.summary()
+
+
+def take_row(sim, times: list[float], *, frames: int = 0, label: str | None = None, progress=None,
+             out: dict | None = None) -> Row:
+    """Step ``sim`` on to each of ``times`` (s, >= its time) and take the robot's shape there; ``frames`` > 0
+    also collects that many equally spaced frames over the same window for an animation. The caption's values
+    are those of ``out`` (the summary at the steady state, from :func:`run_up`), else of the run's summary when
+    it is over."""
+    from ..physics import StepFailed
+    scene = sim.scene
+    label = label or f"n = {scene.robot.n_flagella}"
+    wanted = sorted(set(times) | set(_window(times, frames) if frames else ()))
+    taken: dict[float, RobotGeometry] = {}
+    dt = scene.time.dt
+    try:
         for t in wanted:
             while sim.time < t - 0.5 * dt:
                 sim.step()
                 if progress is not None:
                     progress(sim)
             taken[t] = RobotGeometry.from_simulation(sim)
-        if out is None:
-            out = sim.summary()
     except StepFailed as exc:
         raise RenderError(f"{label}: the simulation failed at t = {sim.time:.3f} s: {exc}") from None
+    out = out if out is not None else sim.summary()
     values = {k: float(out[k]) for k in ("omega_T", "omega_h", "omega_t", "v")}
     return Row(label, [taken[t] for t in times], values, steady=bool(out["steady"]),
-               frames=[taken[t] for t in _window(times, frames)] if frames else [])
+               frames=[taken[t] for t in _window(times, frames)] if frames else [], group=scene.scene.name,
+               scene=scene)
+
+
+def simulate_row(scene, *, times: list[float] | None = None, snapshots: int = DEFAULT_SNAPSHOTS,
+                 duration: float | None = None, frames: int = 0, label: str | None = None,
+                 progress=None) -> Row:
+    """Simulate ``scene`` and take its shape at ``times`` (default: one revolution after the steady state is
+    reached, or after ``duration`` s, the scene's ``time.duration`` by default); ``frames`` > 0 also collects that
+    many equally spaced frames over the same window for an animation."""
+    out = None
+    if times is None:
+        sim, out = run_up(scene, duration=duration, progress=progress)
+        times = revolution_times(sim.time, out["omega_t"], snapshots)
+    else:
+        from ..physics import Simulation
+        times = _checked_times(times)
+        sim = Simulation(scene)
+    return take_row(sim, times, frames=frames, label=label, progress=progress, out=out)
+
+
+def common_times(sims: list, outs: list[dict], count: int) -> list[float]:
+    """The snapshot times that rows simulated side by side share (the paper's layout: n = 2 and n = 3 of one
+    design in one panel): from the latest of their steady times, one revolution of the slowest flagella (the
+    longest 2 pi / omega_t) in ``count`` equal steps, so that each column compares them after the same time."""
+    t0 = max(sim.time for sim in sims)
+    periods = [2.0 * math.pi / abs(o["omega_t"]) for o in outs if abs(o["omega_t"]) > 1e-6]
+    period = max(periods) if periods else float(count)
+    return [t0 + k * period / count for k in range(count)]
+
+
+def _checked_times(times) -> list[float]:
+    times = sorted(float(t) for t in times)
+    if times[0] < 0:
+        raise RenderError(f"--times must be >= 0 s, got {times[0]}")
+    return times
 
 
 def recorded_row(path, *, times: list[float] | None = None, snapshots: int = DEFAULT_SNAPSHOTS, frames: int = 0,
@@ -160,7 +202,8 @@ def recorded_row(path, *, times: list[float] | None = None, snapshots: int = DEF
     n = run.frames[0].n
     note = "shape re-simulated" if run.source == "resimulated" else ""
     return Row(label or f"n = {n}", [run.at(t) for t in times], values, note=note, source=Path(path).name,
-               frames=[run.at(t) for t in _window(times, frames)] if frames else [])
+               frames=[run.at(t) for t in _window(times, frames)] if frames else [],
+               group=run.scene.scene.name if run.scene is not None else Path(path).stem, scene=run.scene)
 
 
 def is_recording(source: str) -> bool:
@@ -280,7 +323,9 @@ def _scale_bar(ax, x0: float, y0: float, label_size: float) -> None:
 
 
 def figure(rows: list[Row], *, title: str = "", width: float = 16.0, dpi: float = 150.0):
-    """The Fig. 1 layout of ``rows`` (each with the same number of snapshots), ``width`` inches wide."""
+    """The per-design layout of ``rows`` (each with the same number of snapshots), ``width`` inches wide: a row
+    per n (or recording), a side view above an end view in each column; panels numbered (1), (2), ... along a
+    row. (The paper's own layout, rows by design with the letters (a), (b) of its Fig. 1: :func:`paper_figure`.)"""
     from matplotlib.figure import Figure
     if not rows or not rows[0].snapshots:
         raise RenderError("nothing to draw: no row or no snapshot")
@@ -291,7 +336,7 @@ def figure(rows: list[Row], *, title: str = "", width: float = 16.0, dpi: float 
     side_w, side_h = fr.side_size
     end = fr.end_size
     top, title_h, row_gap, vgap = 0.15, 0.55 if title else 0.1, 0.32, 0.22
-    caption_lines = len(rows) + 1
+    caption_lines = len(rows) + 2
     bottom = 0.22 * caption_lines + 0.2
     row_h = 0.22 + side_h + vgap + end
     height = top + title_h + len(rows) * row_h + (len(rows) - 1) * row_gap + bottom
@@ -299,7 +344,6 @@ def figure(rows: list[Row], *, title: str = "", width: float = 16.0, dpi: float 
     if title:
         fig.text(0.5, 1 - (top + 0.2) / height, title, ha="center", va="center", fontsize=12)
     ppm = fr.scale * 72.0                      # points per metre
-    letters = "abcdefghijklmnopqrstuvwxyz"
     y = height - top - title_h
     axes = []
     for ri, row in enumerate(rows):
@@ -319,15 +363,16 @@ def figure(rows: list[Row], *, title: str = "", width: float = 16.0, dpi: float 
             ax.axvline(x_ref, color="#888888", lw=0.6, ls=(0, (3, 3)), zorder=0)
             draw_robot(ax, g, "side", ppm)
             dx = g.points()[:, 0].max() - x_ref
-            ax.set_title(f"({letters[ri % 26]}{ci + 1})  t = {g.t:.2f} s,  $\\Delta x$ = {1e3 * dx:+.2f} mm",
+            ax.set_title(f"({ci + 1})  t = {g.t:.2f} s,  $\\Delta x$ = {1e3 * dx:+.2f} mm",
                          fontsize=label_fs, loc="left", pad=3)
             ax_end = _panel(fig, (x + 0.5 * (col_w - end), y_end), (end, end), (-fr.half_height, fr.half_height),
                             (-fr.half_height, fr.half_height))
             draw_robot(ax_end, g, "end", ppm)
             axes.append((ri, ci, ax, ax_end))
         y = y_end - row_gap
-    caption = ["Snapshots of the robot's shape, all drawn to one scale in the world frame (x forward); dashed "
-               "line: the robot's front at the row's first snapshot; black bar: 2 cm."] + [r.caption() for r in rows]
+    caption = ["Snapshots of the robot's shape, all drawn to one scale in the world frame (x forward).",
+               "Dashed line: the robot's front at the row's first snapshot; black bar: 2 cm."] + \
+        [r.caption() for r in rows]
     for k, line in enumerate(caption):
         fig.text(left / width, (bottom - 0.2 - 0.22 * k) / height, line, fontsize=label_fs + 1, ha="left",
                  va="top")
@@ -341,8 +386,108 @@ def figure(rows: list[Row], *, title: str = "", width: float = 16.0, dpi: float 
     return fig
 
 
+def design_name(name: str) -> str:
+    """A scene's name as the paper writes it: design1 -> "design 1"."""
+    m = re.fullmatch(r"design(\d+)", name)
+    return f"design {m.group(1)}" if m else name
+
+
+def groups_of(rows: list[Row]) -> dict[str, list[Row]]:
+    """The rows by design (their ``group``), in the order the designs first appear."""
+    out: dict[str, list[Row]] = {}
+    for r in rows:
+        out.setdefault(r.group or r.label, []).append(r)
+    return out
+
+
+def _sizes(scene) -> str:
+    if scene is None:
+        return ""
+    head = f", $R_h$ = {1e3 * scene.head.radius:.0f} mm" if not scene.clamped else ""
+    return f":  $L$ = {1e3 * scene.flagellum.length:.0f} mm{head}, $L_p$ = {1e3 * scene.plate.diameter:.0f} mm"
+
+
+def paper_figure(rows: list[Row], *, title: str = "", width: float = 16.0, dpi: float = 150.0):
+    """The paper's Fig. 1 layout: a row per design, (a) the first, (b) the second, ... as its caption says; in
+    each panel (a1), (a2), ... the side views of that design's robots (n = 2 above n = 3) at one time, each with
+    how far it swam since the row's first panel, all to one scale. Rows of one design share their times when they
+    were simulated side by side (:func:`common_times`), so a column compares them after the same time."""
+    from matplotlib.figure import Figure
+    if not rows or not rows[0].snapshots:
+        raise RenderError("nothing to draw: no row or no snapshot")
+    groups = groups_of(rows)
+    ncol = max(len(r.snapshots) for r in rows)
+    left, right, gap, fs = 1.05, 0.15, 0.14, 9
+    col_w = (width - left - right - (ncol - 1) * gap) / ncol
+    fr = _extents(rows, col_w)
+    side_w, side_h = fr.side_size
+    top, title_h = 0.15, (0.55 if title else 0.1)
+    header_h, ptitle_h, dx_h, strip_gap, group_gap = 0.32, 0.24, 0.24, 0.06, 0.3
+    caption_lines = len(rows) + 2
+    bottom = 0.22 * caption_lines + 0.2
+    body = sum(header_h + ptitle_h + len(g) * (side_h + dx_h) + (len(g) - 1) * strip_gap for g in groups.values())
+    height = top + title_h + body + (len(groups) - 1) * group_gap + bottom
+    fig = Figure(figsize=(width, height), dpi=dpi)
+    if title:
+        fig.text(0.5, 1 - (top + 0.2) / height, title, ha="center", va="center", fontsize=12)
+    ppm = fr.scale * 72.0
+    index = {id(r): k for k, r in enumerate(rows)}
+    y = height - top - title_h
+    panels = []
+    for gi, (name, members) in enumerate(groups.items()):
+        letter = "abcdefghijklmnopqrstuvwxyz"[gi % 26]
+        fig.text(0.12 / width, (y - 0.5 * header_h) / height, f"({letter})  {design_name(name)}"
+                 + _sizes(members[0].scene), fontsize=11, fontweight="bold", ha="left", va="center")
+        y -= header_h + ptitle_h
+        for ri, row in enumerate(members):
+            y_side = y - side_h
+            fig.text(0.12 / width, (y_side + 0.5 * side_h) / height, row.label, fontsize=11, fontweight="bold",
+                     ha="left", va="center")
+            if row.source:
+                fig.text(0.12 / width, (y_side + 0.5 * side_h) / height - 0.2 / height, row.source,
+                         fontsize=fs - 2, ha="left", va="center", color="#555555")
+            x_ref = row.snapshots[0].points()[:, 0].max()          # its front at the row's first snapshot
+            for ci, g in enumerate(row.snapshots):
+                x = left + ci * (col_w + gap)
+                ax = _panel(fig, (x, y_side), (side_w, side_h),
+                            (fr.x_lo[index[id(row)]], fr.x_lo[index[id(row)]] + fr.side_width),
+                            (-fr.half_height, fr.half_height))
+                ax.axvline(x_ref, color="#888888", lw=0.6, ls=(0, (3, 3)), zorder=0)
+                draw_robot(ax, g, "side", ppm)
+                shared = len({round(m.snapshots[ci].t, 6) for m in members if ci < len(m.snapshots)}) == 1
+                if ri == 0:
+                    ax.set_title(f"({letter}{ci + 1})" + (f"  t = {g.t:.2f} s" if shared else ""), fontsize=fs,
+                                 loc="left", pad=3)
+                dx = g.points()[:, 0].max() - x_ref
+                fig.text(x / width, (y_side - 0.04) / height, f"{row.label}: $\\Delta x$ = {1e3 * dx:+.2f} mm"
+                         + ("" if shared else f",  t = {g.t:.2f} s"), fontsize=fs - 1, ha="left", va="top")
+                panels.append((gi, ri, ci, ax))
+            y = y_side - dx_h - strip_gap
+        y += strip_gap - group_gap
+    caption = ["Side views of the robot's shape (world x forward), all drawn to one scale; in each panel the "
+               "robots of one design at one time.",
+               "Dashed line: each robot's front at the row's first panel; $\\Delta x$: how far it swam since; "
+               "black bar: 2 cm."]
+    for gi, (name, members) in enumerate(groups.items()):
+        caption += [f"({'abcdefghijklmnopqrstuvwxyz'[gi % 26]}) {design_name(name)}, " + r.caption() for r in members]
+    for k, line in enumerate(caption):
+        fig.text(left / width, (bottom - 0.2 - 0.22 * k) / height, line, fontsize=fs + 1, ha="left", va="top")
+    bar_ax = _panel(fig, (0.12, bottom - 0.2 - 0.22 * (len(caption) - 1) - 0.05), (SCALE_BAR * fr.scale, 0.25),
+                    (0.0, SCALE_BAR), (0.0, 0.25 / fr.scale))
+    bar_ax.set_axis_off()
+    _scale_bar(bar_ax, 0.0, 0.0, fs)
+    fig.flagbot_panels = panels                 # (design, row in it, column, side axes), for tests
+    fig.flagbot_frame = fr
+    return fig
+
+
+#: the layouts of ``flagbot render --layout``
+LAYOUTS = {"per-design": figure, "paper": paper_figure}
+
+
 def animation(rows: list[Row], out: str | Path, *, fps: float = 10.0, dpi: float = 100.0, title: str = "") -> int:
-    """A GIF of every row's frames (side and end views), one row per line; the number of frames written."""
+    """A GIF of every row's frames (side and end views), one row per line, each row's time under its name (with
+    its design when the rows are of several); the number of frames written."""
     from matplotlib.animation import PillowWriter
     from matplotlib.figure import Figure
     n = min(len(r.frames) for r in rows)
@@ -352,23 +497,28 @@ def animation(rows: list[Row], out: str | Path, *, fps: float = 10.0, dpi: float
     fr = _extents(rows, col_w)
     side_w, side_h = fr.side_size
     end = fr.end_size
-    width = 1.0 + side_w + 0.3 + end + 0.2
+    several = len(groups_of(rows)) > 1
+    names = [f"{design_name(r.group)}, {r.label}" if several and r.group else r.label for r in rows]
+    lm = 1.8 if several else 1.0                    # the left margin holds the names
+    width = lm + side_w + 0.3 + end + 0.2
     row_h = max(side_h, end) + 0.45
-    height = 0.45 + len(rows) * row_h + 0.25
+    height = (0.45 if title else 0.15) + len(rows) * row_h + 0.25
     fig = Figure(figsize=(width, height), dpi=dpi)
     ppm = fr.scale * 72.0
-    panels = []
+    panels, clocks = [], []
     for ri, row in enumerate(rows):
-        y = height - 0.45 - (ri + 1) * row_h + 0.1
-        fig.text(0.1 / width, (y + 0.5 * side_h) / height, row.label, fontsize=11, fontweight="bold", va="center")
-        panels.append((row, (1.0, y), (1.0 + side_w + 0.3, y + 0.5 * (side_h - end)), ri))
-    title_text = fig.text(0.5, 1 - 0.25 / height, "", ha="center", va="center", fontsize=11)
+        y = height - (0.45 if title else 0.15) - (ri + 1) * row_h + 0.1
+        fig.text(0.1 / width, (y + 0.5 * side_h + 0.1) / height, names[ri], fontsize=11, fontweight="bold",
+                 va="center")
+        clocks.append(fig.text(0.1 / width, (y + 0.5 * side_h - 0.12) / height, "", fontsize=9, va="center"))
+        panels.append((row, (lm, y), (lm + side_w + 0.3, y + 0.5 * (side_h - end)), ri))
+    if title:
+        fig.text(0.5, 1 - 0.25 / height, title, ha="center", va="center", fontsize=11)
     writer = PillowWriter(fps=fps)
     with writer.saving(fig, str(out), dpi):
         for k in range(n):
             for ax in list(fig.axes):
                 ax.remove()
-            stamps = []
             for row, side_at, end_at, ri in panels:
                 g = row.frames[k]
                 ax = _panel(fig, side_at, (side_w, side_h), (fr.x_lo[ri], fr.x_lo[ri] + fr.side_width),
@@ -381,8 +531,7 @@ def animation(rows: list[Row], out: str | Path, *, fps: float = 10.0, dpi: float
                     _scale_bar(bar_ax, 0.0, 0.0, 8)
                 draw_robot(_panel(fig, end_at, (end, end), (-fr.half_height, fr.half_height),
                                   (-fr.half_height, fr.half_height)), g, "end", ppm)
-                stamps.append(f"{row.label}: t = {g.t:.2f} s")
-            title_text.set_text((title + "   " if title else "") + "   ".join(stamps))
+                clocks[ri].set_text(f"t = {g.t:.2f} s")
             writer.grab_frame()
     return n
 
@@ -423,14 +572,20 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=40, metavar="K", help="frames of the --gif (default 40)")
     p.add_argument("--fps", type=float, default=10.0, help="frames per second of the --gif (default 10)")
     p.add_argument("--namespace", default=None, help="robot namespace in a recording (default: found)")
+    p.add_argument("--layout", choices=list(LAYOUTS), default="per-design",
+                   help="per-design (default): a row per n or recording, side and end views, panels (1), (2), ...; "
+                        "paper: the paper's Fig. 1, a row per design ((a) design 1, (b) design 2, as its caption "
+                        "says), each panel the side views of that design's n = 2 and n = 3 at one time")
 
 
 def build_rows(args, log=None) -> tuple[list[Row], str]:
-    """The rows the arguments ask for, and a default title."""
+    """The rows the arguments ask for, and a default title. With ``--layout paper`` the rows of one scene are
+    simulated side by side to their steady states and then share their snapshot times (:func:`common_times`)."""
     if args.snapshots < 1:
         raise RenderError(f"--snapshots must be >= 1, got {args.snapshots}")
     if args.frames < 0 or (args.gif and args.frames < 2):
         raise RenderError(f"--frames must be >= 2 with --gif, got {args.frames}")
+    paper = getattr(args, "layout", "per-design") == "paper"
     times = _floats(args.times, "--times") if args.times else None
     frames = args.frames if args.gif else 0
     rows, titles = [], []
@@ -443,15 +598,31 @@ def build_rows(args, log=None) -> tuple[list[Row], str]:
         base = load_scene(src, args.overrides)
         ns = [int(n) for n in _floats(args.n, "--n")] if args.n else ([base.robot.n_flagella] if base.clamped
                                                                      else [2, 3])
-        for n in ns:
-            scene = base.with_overrides({"robot.n_flagella": n}) if n != base.robot.n_flagella else base
-            if log is not None:
-                log(f"simulating {base.scene.name} with n = {n} ...")
-            rows.append(simulate_row(scene, times=times, snapshots=args.snapshots, duration=args.duration,
-                                     frames=frames))
-        head = f", $R_h$ = {1e3 * base.head.radius:.0f} mm" if not base.clamped else ""
-        titles.append(f"scene {base.scene.name} ($L$ = {1e3 * base.flagellum.length:.0f} mm{head}, $L_p$ = "
-                      f"{1e3 * base.plate.diameter:.0f} mm), $\\omega_T$ = {base.omega_T / RPM:.0f} rpm")
+        scenes = [base.with_overrides({"robot.n_flagella": n}) if n != base.robot.n_flagella else base for n in ns]
+        if paper and times is None:
+            ups = []
+            for sc in scenes:
+                if log is not None:
+                    log(f"simulating {base.scene.name} with n = {sc.robot.n_flagella} ...")
+                ups.append(run_up(sc, duration=args.duration))
+            shared = common_times([sim for sim, _ in ups], [out for _, out in ups], args.snapshots)
+            rows += [take_row(sim, shared, frames=frames, out=out) for sim, out in ups]
+        else:
+            for sc in scenes:
+                if log is not None:
+                    log(f"simulating {base.scene.name} with n = {sc.robot.n_flagella} ...")
+                rows.append(simulate_row(sc, times=times, snapshots=args.snapshots, duration=args.duration,
+                                         frames=frames))
+        if paper:
+            titles.append(f"{design_name(base.scene.name)} at $\\omega_T$ = {base.omega_T / RPM:.0f} rpm")
+        else:
+            head = f", $R_h$ = {1e3 * base.head.radius:.0f} mm" if not base.clamped else ""
+            titles.append(f"scene {base.scene.name} ($L$ = {1e3 * base.flagellum.length:.0f} mm{head}, $L_p$ = "
+                          f"{1e3 * base.plate.diameter:.0f} mm), $\\omega_T$ = {base.omega_T / RPM:.0f} rpm")
+    if paper:
+        when = ("at the times given" if times else "once steady, each design's robots at the same times, over "
+                "one turn of the slower flagella")
+        return rows, "Fig. 1, a row per design: " + "; ".join(titles) + "; " + when
     when = ("at the times given" if times else
             "over one flagellar revolution after the run-up to steady state (steps of $2\\pi/\\omega_t$)")
     return rows, "; ".join(titles) + ": " + when
@@ -487,12 +658,15 @@ def cmd_render(args) -> int:
     try:
         check_outputs(args)
         rows, title = build_rows(args, log=lambda m: print(m, file=sys.stderr, flush=True))
-        fig = figure(rows, title=args.title if args.title is not None else title, width=args.width, dpi=args.dpi)
+        fig = LAYOUTS[args.layout](rows, title=args.title if args.title is not None else title, width=args.width,
+                                   dpi=args.dpi)
         fig.savefig(args.out, dpi=args.dpi)
         w, h = _saved_size(args.out, fig, args.dpi)
         print(f"wrote {args.out}: {len(rows)} row(s) x {len(rows[0].snapshots)} snapshots, {w} x {h} px")
+        several = len(groups_of(rows)) > 1
         for r in rows:
-            print("  " + r.caption().replace("$", "").replace("\\omega", "omega"))
+            print("  " + (f"{design_name(r.group)}, " if several else "")
+                  + r.caption().replace("$", "").replace("\\omega", "omega"))
         if args.gif:
             n = animation(rows, args.gif, fps=args.fps, title=args.title or "")
             print(f"wrote {args.gif}: {n} frames at {args.fps:g} fps")

@@ -39,7 +39,7 @@ def cmd_replay_view(args) -> int:
     """``flagbot replay BAG --view [--rate R] [--loop] [--start-offset S] [--view-port P] [--view-wait S]``."""
     from ..bag import BagError
     from ..resim import ResimulationError
-    from .cli import open_live_view, wait_for_client
+    from .cli import open_live_view, wait_or_note
     try:
         run = load(args.bag, args.namespace or None)
     except (BagError, ResimulationError) as exc:
@@ -49,8 +49,7 @@ def cmd_replay_view(args) -> int:
         print(f"note: {n}", file=sys.stderr)
     view = open_live_view(args)
     try:
-        if args.view_wait > 0 and not wait_for_client(view, args.view_wait):
-            print(f"live view: no client after {args.view_wait:g} s; playing anyway", file=sys.stderr, flush=True)
+        wait_or_note(view, args.view_wait, "playing")
         try:
             shown = play(run, view, rate=args.rate, loop=args.loop, start_offset=args.start_offset)
         except ValueError as exc:
