@@ -162,6 +162,7 @@ def test_the_linearisation_admits_the_tilted_robot(scene, rpm, inertia):
 
 
 @pytest.mark.parametrize("scene,overrides", [("design1", ["flagellum.length=0.05", "motor.omega_rpm=200"]),
+                                             ("design1", []),       # ARPACK's last mode was half a complex pair
                                              ("design2", SHORT_D2),
                                              ("clamped_flagellum", [*D2_CLAMPED, "motor.omega_rpm=5000"])])
 def test_stability_finds_the_slowest_mode_of_the_whole_spectrum(scene, overrides):
@@ -184,7 +185,12 @@ def test_stability_finds_the_slowest_mode_of_the_whole_spectrum(scene, overrides
     found = np.array(st.rates)
     inside = mu[np.abs(mu) <= np.abs(found).max() * (1 + 1e-6)]
     assert len(inside) == len(found)
-    assert np.all([np.min(np.abs(found - m)) < 1e-6 * max(1.0, abs(m)) for m in inside])
+    # the shift and tilt modes are a double pair at +-i omega_t: a double eigenvalue is known to a dense solver only
+    # to ~sqrt(eps) of the matrices' scale (measured: 3.5e-6 relative with numpy 2.4 / scipy 1.17), every simple
+    # mode to ~1e-8; ARPACK's answer must be within that of each
+    double = (np.abs(inside.real) < 1e-4 * omega_t) & (np.abs(np.abs(inside.imag) - omega_t) < 1e-4 * omega_t)
+    tol = np.where(double, 1e-4, 1e-6)
+    assert np.all([np.min(np.abs(found - m)) < t * max(1.0, abs(m)) for m, t in zip(inside, tol)])
     if S.clamped:
         assert st.neutral == 0 and not st.stable and st.rate == pytest.approx(inside.real.max(), rel=1e-6)
         assert st.rate > 10.0                                        # [41 1/s at 227 rad/s]

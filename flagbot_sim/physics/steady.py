@@ -166,6 +166,16 @@ class _BorderedPattern:
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
 
 
+
+def conjugate_pairs(mu: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
+    """``mu`` without a complex mode whose conjugate is missing. The pencil is real, so its modes come in
+    conjugate pairs; ARPACK's k modes of largest |nu| can end on half a pair, and the modes examined must be every
+    mode up to the largest |mu| reported (the slowest-mode verdict relies on that)."""
+    if len(mu) == 0:
+        return mu
+    paired = [abs(m.imag) <= rtol * abs(m) or np.min(np.abs(mu - np.conj(m))) <= rtol * max(1.0, abs(m)) for m in mu]
+    return mu[np.array(paired)]
+
 class SteadySolver:
     """Relative equilibria of one scene (its RobotModel): ``solve(omega_T)``."""
 
@@ -492,7 +502,7 @@ class SteadySolver:
             except spla.ArpackNoConvergence as exc:      # the converged ones are still eigenvalues
                 nu = exc.eigenvalues
             nu = nu[np.abs(nu) > 1e-300]
-            mu = sigma + 1.0 / nu
+            mu = conjugate_pairs(sigma + 1.0 / nu)
             mu = mu[np.argsort(-mu.real)]
             if self.clamped:
                 neutral = np.zeros(len(mu), bool)
