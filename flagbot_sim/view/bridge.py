@@ -11,7 +11,7 @@ none of the names is answered 400 here, and the log says what it offered.
 
 Why a byte relay and not a protocol server of our own: the SDK keeps doing the protocol (channels, schemas,
 subscriptions, per-client backlogs that drop old data for a slow client), and the relay is one handshake parse
-plus two copy loops; it adds ~0.1 ms per message on loopback (``benchmarks/live_view_clients.py`` prints it).
+plus two copy loops; it adds 0.08-0.18 ms per message on loopback (``benchmarks/live_view_clients.py`` prints it).
 
 Hostile clients meet limits before anything reaches the SDK: a request head larger than :data:`MAX_HEAD` bytes
 or not complete within ``handshake_timeout`` is dropped (slowloris; when :data:`MAX_PENDING` handshakes are
@@ -22,8 +22,9 @@ connection (clients send only small JSON requests; the SDK's own limit is 16 MiB
 holds back the relay, which holds back the SDK's socket, so the SDK's backlog policy stays in force.
 
 Memory: the SDK allocates per-client buffers with glibc's malloc in its own threads; freed, they stay in those
-threads' arenas and RSS stays up (~13-19 MB after 200 clients). After clients leave, the relay asks glibc to
-return free pages to the system (``malloc_trim``), which brings RSS back to within ~1 MB of where it started.
+threads' arenas and RSS stays up (+14 to +18 MB after 200 clients). Once departures settle, the relay asks glibc
+to return free pages to the system (``malloc_trim``): +2.4 to +4.9 MB then, flat up to 2400 clients
+(docs/live_view.md has the figures).
 """
 from __future__ import annotations
 
