@@ -7,15 +7,13 @@ import base64
 import os
 import random
 import struct
-import threading
 import time
 
 import pytest
 import websockets
 from foxglove_client import Client
+from view_testlib import Publishing, stepped_design2
 
-from flagbot_sim.physics import Simulation
-from flagbot_sim.scene import load_scene
 from flagbot_sim.view import bridge
 from flagbot_sim.view.bridge import (LEGACY_SUBPROTOCOL, MAX_HEAD, MAX_MESSAGE, MAX_PENDING, BadRequest, FrameGuard,
                                      translate_request, translate_response)
@@ -137,33 +135,18 @@ def test_refusal_lines_are_throttled_per_kind_and_the_held_back_ones_counted(mon
 # ---------------------------------------------------------------------------------------------- live
 @pytest.fixture(scope="module")
 def sim():
-    s = Simulation(load_scene("design2"))
-    s.step()
-    return s
+    return stepped_design2(2, steps=1)
 
 
-class Serving:
-    """A LiveView publishing ``sim`` every 50 ms from a thread; ``lines`` collects what it logs."""
+class Serving(Publishing):
+    """A LiveView on a free port publishing ``sim``; ``lines`` collects what it logs."""
 
     def __init__(self, sim, **kw):
         self.lines = []
-        self.view = LiveView(port=0, log=self.lines.append, **kw)
-        self.sim = sim
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self):
-        while not self._stop.is_set():
-            self.view.update(self.sim, force=True)
-            time.sleep(0.05)
-
-    def __enter__(self):
-        self._thread.start()
-        return self
+        super().__init__(LiveView(port=0, log=self.lines.append, **kw), sim)
 
     def __exit__(self, *exc):
-        self._stop.set()
-        self._thread.join()
+        super().__exit__(*exc)
         self.view.close(linger=0)
 
 

@@ -7,16 +7,13 @@ advertises) are installed from the npm registry on first use into a cache outsid
 state, and decodes them in JavaScript; here the decoded flagellum points are compared with the simulation's nodes.
 """
 import json
-import threading
-import time
 
 import numpy as np
 import pytest
 from npm_helpers import node_modules, run_node
+from view_testlib import Publishing, stepped_design2
 
 from flagbot_sim import world
-from flagbot_sim.physics import Simulation
-from flagbot_sim.scene import load_scene
 from flagbot_sim.view.bridge import LEGACY_SUBPROTOCOL
 from flagbot_sim.view.live import TOPICS, LiveView
 
@@ -28,32 +25,7 @@ def npm():
 
 @pytest.fixture(scope="module")
 def sim():
-    s = Simulation(load_scene("design2", ["robot.n_flagella=3"]))
-    for _ in range(4):
-        s.step()
-    return s
-
-
-class Publishing:
-    """The view publishing ``sim`` (not stepping: every publication is the same instant) every 50 ms."""
-
-    def __init__(self, view, sim):
-        self.view, self.sim = view, sim
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self):
-        while not self._stop.is_set():
-            self.view.update(self.sim, force=True)
-            time.sleep(0.05)
-
-    def __enter__(self):
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc):
-        self._stop.set()
-        self._thread.join()
+    return stepped_design2(3)
 
 
 def xyz(p) -> list:
