@@ -1,6 +1,6 @@
 """A minimal Foxglove WebSocket client for the tests, written from the protocol as the Foxglove app speaks it.
 
-It connects with the subprotocol ``foxglove.sdk.v1``, reads ``serverInfo`` and ``advertise`` (JSON text frames),
+It connects with the subprotocol ``foxglove.sdk.v1`` (or the one it is given: ``foxglove.websocket.v1``), reads ``serverInfo`` and ``advertise`` (JSON text frames),
 subscribes, and decodes binary ``messageData`` frames (opcode 1, subscription id u32, log time u64, payload): a
 protobuf channel with the FileDescriptorSet the server advertised (google.protobuf, as the app does with its own
 decoder), a JSON channel with json. Nothing of the server's SDK is used.
@@ -44,12 +44,15 @@ class Client:
         self._decoders = {}
 
     @classmethod
-    async def connect(cls, url: str, timeout: float = 5.0) -> "Client":
-        ws = await asyncio.wait_for(websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None), timeout)
-        assert ws.subprotocol == SUBPROTOCOL
+    async def connect(cls, url: str, timeout: float = 5.0, subprotocol: str = SUBPROTOCOL) -> "Client":
+        """Connected, with the server's info and channels read; ``subprotocol`` the only one offered."""
+        ws = await asyncio.wait_for(websockets.connect(url, subprotocols=[subprotocol], max_size=None), timeout)
+        assert ws.subprotocol == subprotocol
         c = cls(ws)
         while c.server_info is None or not c.channels:
-            c._control(json.loads(await asyncio.wait_for(ws.recv(), timeout)))
+            frame = await asyncio.wait_for(ws.recv(), timeout)
+            if isinstance(frame, str):      # a binary frame (the time, while a run publishes) is not control
+                c._control(json.loads(frame))
         return c
 
     def _control(self, msg: dict) -> None:

@@ -10,7 +10,7 @@ from rosgraph_msgs.msg import Clock
 from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, set_params, spin_until
 
 pytest.importorskip("foxglove")
-pytest.importorskip("websockets")
+websockets = pytest.importorskip("websockets")
 from foxglove_client import Client  # noqa: E402
 
 
@@ -31,10 +31,14 @@ def test_sim_node_serves_the_robot_to_a_foxglove_client(ros):
         spin_until(ros, lambda: clock, DISCOVERY_TIMEOUT, "/clock from sim_node")
 
         async def watch():
-            c = await Client.connect(f"ws://127.0.0.1:{port}", timeout=20)
+            # the protocol's first name (Lichtblick, @foxglove/ws-protocol) is served like the SDK's
+            c = await Client.connect(f"ws://127.0.0.1:{port}", timeout=20, subprotocol="foxglove.websocket.v1")
             await c.subscribe({"/flagbot/state", "/flagbot/scene"})
             got = await c.collect({"/flagbot/state", "/flagbot/scene"}, timeout=20)
             await c.close()
+            # a client offering neither is refused (HTTP 400), and the node's log says what it offered
+            with pytest.raises(websockets.InvalidStatus, match="400"):
+                await websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.ros.v9"])
             return got
         got = asyncio.run(watch())
         state = got["/flagbot/state"][-1][1]
@@ -53,3 +57,5 @@ def test_sim_node_serves_the_robot_to_a_foxglove_client(ros):
         ros.destroy_subscription(sub)
         code, out = proc.stop()
     assert code == 0, out
+    assert "live view: refused a client from 127.0.0.1:" in out and \
+        "it offered the WebSocket subprotocols 'foxglove.ros.v9'" in out, out

@@ -15,20 +15,16 @@ import numpy as np
 import pytest
 from cli_helpers import ROOT
 from foxglove_client import Client
+from view_testlib import stepped_design2
 
 from flagbot_sim import world
-from flagbot_sim.physics import Simulation
-from flagbot_sim.scene import load_scene
 from flagbot_sim.view import geometry, layout, live
 from flagbot_sim.view.live import TOPICS, LiveView, ViewError
 
 
 @pytest.fixture(scope="module")
 def sim():
-    s = Simulation(load_scene("design2", ["robot.n_flagella=3"]))
-    for _ in range(4):
-        s.step()
-    return s
+    return stepped_design2(3)
 
 
 def run(coro):

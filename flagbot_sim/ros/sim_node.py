@@ -242,7 +242,7 @@ class SimNode(Node):
         try:
             from ..view.live import LiveView, ViewError
             return LiveView(host=params["foxglove_host"], port=int(params["foxglove_port"]), frame=params["frame_id"],
-                            child_frame=params["child_frame_id"])
+                            child_frame=params["child_frame_id"], log=self.get_logger().warning)
         except (MissingExtra, ViewError, ValueError, OSError) as exc:
             raise Refused(one_line(str(exc))) from None
 

@@ -1,7 +1,10 @@
 """LiveView: a Foxglove WebSocket server showing the robot live (the ``[view]`` extra, foxglove-sdk).
 
-Connect the Foxglove app (Open connection -> Foxglove WebSocket -> ``ws://127.0.0.1:PORT``) and import the layout
-:data:`LAYOUT_FILE` (Layouts -> Import from file) to see the robot in 3-D and its rates in plots. Channels:
+Connect the Foxglove app or Lichtblick (Open connection -> Foxglove WebSocket -> ``ws://127.0.0.1:PORT``) and import
+the layout :data:`LAYOUT_FILE` (Layouts -> Import from file) to see the robot in 3-D and its rates in plots
+(docs/live_view.md). Every name of the protocol is served (``foxglove.websocket.v1``, which Lichtblick and the npm
+client offer, and the SDK's ``foxglove.sdk.v1`` / ``v1.1``): clients reach the SDK's server through
+:class:`~.bridge.Bridge`, which also keeps hostile clients out and returns a departed client's memory. Channels:
 
 =================  ========================  ===========================================================
 topic              schema                    content
@@ -25,13 +28,16 @@ simulation (or while holding whatever lock guards it).
 """
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from pathlib import Path
+from typing import Callable
 
 from ..cliutil import dumps
 from ..optional import require
 from .args import DEFAULT_PORT
+from .bridge import MAX_CLIENTS, Bridge
 from .geometry import RobotGeometry
 
 #: the Foxglove layout shipped with the package (also installed to share/flagbot_sim/foxglove/)
@@ -47,6 +53,10 @@ TOPICS = (TOPIC_SCENE, TOPIC_TUBE, TOPIC_TF, TOPIC_STATE)
 TUBE_PERIOD = 1.0
 
 
+def _to_stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
 class ViewError(RuntimeError):
     """The live view cannot start (port taken, bad host, ...); the message names the address."""
 
@@ -59,10 +69,19 @@ class LiveView:
     :param max_rate: most publications per second of wall time (:meth:`update` skips calls in between).
     :param frame: the fixed frame's name; ``child_frame`` the head's.
     :param tube: also show the experiments' container tube (:func:`scene_msgs.tube_update`).
+    :param log: receives one line per refused or dropped client (what it offered, which limit); default stderr.
+    :param max_clients: most clients served at once (503 beyond).
+    :param release_memory: return the memory a client's buffers held to the system after it leaves (glibc).
+
+    Clients connect to :class:`~.bridge.Bridge` on ``host:port``, which accepts every name of the protocol
+    (``foxglove.websocket.v1``, ``foxglove.sdk.v1``, ``foxglove.sdk.v1.1``) and relays to the SDK's server on a
+    loopback port of its own.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *, max_rate: float = 30.0,
-                 frame: str = "world", child_frame: str = "head", tube: bool = True, name: str = "flagbot_sim"):
+                 frame: str = "world", child_frame: str = "head", tube: bool = True, name: str = "flagbot_sim",
+                 log: Callable[[str], None] | None = None, max_clients: int = MAX_CLIENTS,
+                 release_memory: bool = True):
         foxglove = require("view", "the Foxglove live view")
         from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
         from foxglove.websocket import Capability, ServerListener
@@ -98,14 +117,20 @@ class LiveView:
             def on_subscribe(self, client, channel) -> None:
                 view._fresh_subscriber = True
 
+        self._server = None
         try:
-            self._server = foxglove.start_server(name=name, host=host, port=port, context=self._ctx,
+            # the SDK's server on a loopback port of its own; clients reach it through the bridge (see .bridge)
+            self._server = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self._ctx,
                                                  capabilities=[Capability.Time], server_listener=_Listener())
-        except Exception as exc:     # the SDK raises its own error types (address in use, bad host, ...)
+            self.bridge = Bridge(host, port, int(self._server.port), log=log or _to_stderr,
+                                 max_clients=max_clients, release_memory=release_memory)
+        except Exception as exc:     # OSError (address in use, bad host), or the SDK's own error types
+            if self._server is not None:
+                self._server.stop()
             for ch in self._channels:
                 ch.close()
             raise ViewError(f"cannot serve the live view on {host}:{port}: {exc}") from None
-        self.port = int(self._server.port)
+        self.port = self.bridge.port
 
     # ------------------------------------------------------------------------------------------ state
     @property
@@ -174,6 +199,7 @@ class LiveView:
                 return
             self._closed = True
             try:
+                self.bridge.close()
                 self._server.stop()
             finally:
                 for ch in self._channels:
