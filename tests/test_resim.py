@@ -106,3 +106,16 @@ def test_the_verdict_covers_the_whole_recording_or_says_partial():
     assert off.status == "DIFFERS" and "omega_h by" in off.verdict() and "(20.5 %)" in off.verdict()
     assert result(max_position_error=2 * POSITION_TOLERANCE).status == "DIFFERS"
     assert result(compared_samples=0, compared_duration=0.0, complete=False).status == "NOT CHECKED"
+
+
+def test_the_sample_recording_with_a_reversal_is_compared_whole():
+    """bags/design2_n2_reversal.mcap (bags/make_samples.sh): +50, -50, 0, +50 rpm. The old rule stopped at the
+    reversal (8.0 s of 32.2 s) and still said REPRODUCED."""
+    from pathlib import Path
+
+    from flagbot_sim.resim import resimulate
+    res = resimulate(Path(__file__).resolve().parents[1] / "bags" / "design2_n2_reversal.mcap")
+    commands = [w for _, w in res.commands]
+    assert min(commands) < 0 < max(commands) and 0.0 in commands[1:]
+    assert res.status == "REPRODUCED" and res.complete and res.fraction == 1.0, res.verdict()
+    assert res.recorded_duration > 30 and res.compared_samples == res.samples - 1
