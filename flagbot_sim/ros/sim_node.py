@@ -38,7 +38,7 @@ from . import convert
 from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
-                     node_scene, text_refusal)
+                     node_scene, record_refusal, text_refusal)
 from .runtime import one_line, run_node, wants_help
 
 PARAMS = [
@@ -326,7 +326,7 @@ class SimNode(Node):
                     raise Refused(reason)
         for name in ("scene", "record", "foxglove_host"):
             if name in p:
-                reason = text_refusal(name, p[name])
+                reason = record_refusal(p[name]) if name == "record" else text_refusal(name, p[name])
                 if reason:
                     raise Refused(reason)
         # rclpy's time source checks use_sim_time only after this node's callback has accepted the set
