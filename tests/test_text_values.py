@@ -97,6 +97,18 @@ def test_record_refuses_control_characters_and_a_dangling_symbolic_link(tmp_path
     assert not (tmp_path / "new.mcap").exists()
 
 
+def test_rclpy_ends_a_string_at_its_first_nul():
+    """Why a NUL in a parameter cannot be refused by the node (msg_docs/sim_node.md): rclpy's serialisation sends
+    the string up to its first NUL, and its deserialisation of a longer one stops there too."""
+    import struct
+
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import String
+    assert deserialize_message(serialize_message(String(data="a\0b")), String).data == "a"
+    whole = b"\x00\x01\x00\x00" + struct.pack("<I", 4) + b"a\0b\0"      # CDR of the 3-character string
+    assert deserialize_message(whole, String).data == "a"
+
+
 def bom_scene(tmp_path):
     """design2 with n = 3, its file starting with a UTF-8 byte order mark (some Windows editors write one)."""
     from flagbot_sim.scene import resolve_scene_path
@@ -162,6 +174,13 @@ def test_sim_node_runs_a_bom_scene_and_refuses_control_characters_and_dangling_l
         assert not target.exists() and not os.path.exists(tmp_path / "run\n.mcap")
         # the refused sets left everything as it was; the BOM scene is accepted at run time too
         assert get_params(ros, "sim_node", ["scene", "record"]) == {"scene": str(f), "record": ""}
+        # a NUL never reaches the node (rclpy sends the string up to it): the node records to that part, and
+        # says so in the parameter's value (msg_docs/sim_node.md, `record`)
+        (res,) = set_params(ros, "sim_node", record=str(tmp_path / "cut\0off.mcap"))
+        assert res.successful, res.reason
+        assert get_params(ros, "sim_node", ["record"])["record"] == str(tmp_path / "cut")
+        (res,) = set_params(ros, "sim_node", record="")
+        assert res.successful and (tmp_path / "cut.mcap").is_file() and not list(tmp_path.glob("*off*"))
         (res,) = set_params(ros, "sim_node", scene="design1")
         assert res.successful, res.reason
         (res,) = set_params(ros, "sim_node", scene=str(f))
