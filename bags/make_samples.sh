@@ -10,4 +10,6 @@ run --scene design1 --n 2 --rpm 50,100,150 --step-duration 12 --record bags/desi
 run --scene design1 --n 3 --rpm 100,150 --step-duration 12 --record bags/design1_n3_steps.mcap
 run --scene design2 --n 2 --rpm 50,100 --step-duration 8 --record bags/design2_n2_steps.mcap
 run --scene design2 --n 3 --rpm 50,100 --step-duration 8 --record bags/design2_n3_steps.mcap
+# a command reversal and a pass through zero (the motor turns back: a command, not a reset, for --resimulate)
+run --scene design2 --n 2 --rpm=50,-50,0,50 --step-duration 8 --record bags/design2_n2_reversal.mcap
 ls -la bags/*.mcap

@@ -16,6 +16,7 @@ import os
 import reprlib
 import stat
 import tomllib
+import unicodedata
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -62,6 +63,21 @@ def short(value: Any, limit: int = 120) -> str:
     elif isinstance(value, (list, tuple, dict)) and len(value) > _REPR.maxlist:
         text += f" ({len(value)} items)"
     return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+_CONTROL_NAMES = {"\n": "a newline", "\r": "a carriage return", "\t": "a tab", "\0": "a NUL",
+                  "\x1b": "an escape", "\u2028": "a line separator", "\u2029": "a paragraph separator"}
+
+
+def control_character(text: str, allowed: str = "") -> str | None:
+    """The first control character of ``text`` not in ``allowed``, named for a message ('a newline (U+000A)'), or
+    None. Control characters are Unicode's Cc (C0 controls, DEL, C1 controls) and the line and paragraph
+    separators: what breaks a value over lines (an override's newline started a second TOML key, which was then
+    dropped) or cuts it short where it becomes a C string (a NUL ends a file name)."""
+    for c in text:
+        if c not in allowed and (unicodedata.category(c) in ("Cc", "Zl", "Zp")):
+            return f"{_CONTROL_NAMES.get(c, 'a control character')} (U+{ord(c):04X})"
+    return None
 
 
 def _names(items, limit: int = 5) -> str:
@@ -381,6 +397,12 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     for item in items:
         if not isinstance(item, str) or "=" not in item:
             raise SceneError(f"override {short(item)} must look like section.key=value")
+        bad = control_character(item)
+        if bad:
+            # a newline would make a second TOML line of the value, silently dropped: one override is one line
+            key, raw = item.split("=", 1)
+            raise SceneError(f"override {short(key.strip(), 60)} = {short(raw.strip())} holds {bad}: each "
+                             "override (--set, a scene_overrides entry) is one section.key=value on one line")
         key, raw = item.split("=", 1)
         key = key.strip()
         _split_key(key)
@@ -443,9 +465,10 @@ def _check_value(section: str, f: dataclasses.Field, value: Any) -> Any:
             raise SceneError(f"{key} must be a string, got {short(value)}")
         if meta.get("max_len") and len(value) > meta["max_len"]:
             raise SceneError(f"{key} is {len(value)} characters long: at most {meta['max_len']} allowed")
-        allowed = "" if meta.get("one_line") else "\t\n\r"
-        if any((ord(c) < 32 or ord(c) == 127) and c not in allowed for c in value):
-            raise SceneError(f"{key} = {short(value)} holds control characters")
+        bad = control_character(value, "" if meta.get("one_line") else "\t\n\r")
+        if bad:
+            raise SceneError(f"{key} = {short(value)} holds {bad}" +
+                             (": it is one line of printable text" if meta.get("one_line") else ""))
     elif isinstance(default, tuple):
         if not isinstance(value, (list, tuple)):
             raise SceneError(f"{key} must be a list, got {short(value)}")
@@ -575,6 +598,10 @@ def resolve_scene_path(name_or_path: str | Path) -> Path:
     if isinstance(name_or_path, str) and not name_or_path.strip():
         raise SceneError(f"no scene given (an empty name); use a built-in scene ({', '.join(builtin_scenes())}) "
                          "or a .toml path")
+    bad = control_character(str(name_or_path))
+    if bad:
+        raise SceneError(f"scene {short(str(name_or_path))} holds {bad}: a scene is a built-in name or a file "
+                         "path, on one line")
     p = Path(name_or_path)
     try:
         st = p.stat()
@@ -601,21 +628,44 @@ def resolve_scene_path(name_or_path: str | Path) -> Path:
 
 
 def read_scene_text(path: Path) -> str:
-    """The text of a scene file: at most MAX_FILE_BYTES, UTF-8 (a BOM is allowed), as TOML requires."""
+    """The text of a scene file: at most MAX_FILE_BYTES, UTF-8 (a leading BOM is dropped), as TOML requires.
+
+    The one reader of scene files, for the CLI and the nodes alike. It never blocks: the file is opened
+    non-blocking and must be a regular file (a FIFO, a directory or a device is refused before anything is read,
+    even one swapped in after :func:`resolve_scene_path` looked), and a file that grows while it is read is cut
+    off at the limit."""
+    shown = short(str(path))
     try:
-        with open(path, "rb") as f:
-            raw = f.read(MAX_FILE_BYTES + 1)
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    except (OSError, ValueError) as exc:              # ValueError: a NUL byte in the name
+        raise SceneError(f"scene file {shown} cannot be read: {getattr(exc, 'strerror', None) or exc}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
+                    else "a device or socket")
+            raise SceneError(f"scene {shown} is {kind}, not a scene file")
+        chunks, size = [], 0
+        while size <= MAX_FILE_BYTES:
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
     except OSError as exc:
-        raise SceneError(f"scene file {short(str(path))} cannot be read: {exc.strerror}") from None
-    if len(raw) > MAX_FILE_BYTES:
-        raise SceneError(f"scene file {short(str(path))} is larger than {MAX_FILE_BYTES >> 20} MiB; a scene "
-                         "file holds a few dozen keys (the built-in ones are ~1 KiB)")
+        raise SceneError(f"scene file {shown} cannot be read: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if size > MAX_FILE_BYTES:
+        raise SceneError(f"scene file {shown} is larger than {MAX_FILE_BYTES >> 20} MiB; a scene file holds a few "
+                         "dozen keys (the built-in ones are ~1 KiB)")
+    raw = b"".join(chunks)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = raw.count(b"\n", 0, exc.start) + 1
         column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise SceneError(f"scene file {short(str(path))} is not UTF-8 text (TOML must be): byte "
+        raise SceneError(f"scene file {shown} is not UTF-8 text (TOML must be): byte "
                          f"0x{raw[exc.start]:02x} at line {line}, column {column}") from None
     return text.removeprefix("\ufeff")
 

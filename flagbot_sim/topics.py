@@ -13,6 +13,9 @@ SPEED = "speed"                      # std_msgs/Float64 (m/s, positive = head fi
 MARKERS = "markers"                  # visualization_msgs/MarkerArray
 DIAGNOSTICS = "/diagnostics"         # diagnostic_msgs/DiagnosticArray
 ROBOT_DESCRIPTION = "robot_description"   # std_msgs/String, URDF of head and plate (transient local)
+# diagnostic_msgs/DiagnosticArray (transient local), one per restart of the simulated state: a ~/reset call or a
+# rebuild (new scene, n_flagella or overrides); what lets `replay --resimulate` follow a run across it
+RESETS = "resets"
 BEAM_SPEED = "beam/speed"            # std_msgs/Float64 (m/s)
 BEAM_OMEGA_H = "beam/omega_h"        # std_msgs/Float64 (rad/s)
 BEAM_OMEGA_T = "beam/omega_t"        # std_msgs/Float64 (rad/s)
@@ -22,7 +25,7 @@ RESET = "~/reset"                    # std_srvs/Trigger
 PAUSE = "~/pause"                    # std_srvs/SetBool
 
 SIM_PUBLISHED = [CLOCK, HEAD_POSE, ODOM, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED, MARKERS, DIAGNOSTICS,
-                 ROBOT_DESCRIPTION]
+                 ROBOT_DESCRIPTION, RESETS]
 BEAM_PUBLISHED = [BEAM_SPEED, BEAM_OMEGA_H, BEAM_OMEGA_T]
 #: what the recorder records by default: every flagbot topic, the command stream and the clock
 DEFAULT_RECORD_TOPICS = [CMD_OMEGA] + SIM_PUBLISHED + BEAM_PUBLISHED

@@ -166,6 +166,9 @@ def test_sample_recordings(bag):
     res = resimulate(bag)
     assert res.max_position_error <= RESIM_POSITION_TOL
     assert max(res.max_omega_h_error, res.max_omega_t_error) <= RESIM_RATE_TOL
+    # ... over the whole recording: every sample compared (a reversal is a command, not a reset)
+    assert res.status == "REPRODUCED" and res.complete and res.fraction == 1.0, res.verdict()
+    assert res.compared_samples == res.samples - 1 and not res.uncompared
     s = summarize(bag)
     steps = [st for st in s["steps"] if st["omega_T"] != 0.0]
     assert len(steps) >= 2

@@ -1,13 +1,13 @@
 """The node-side guards of flagbot_sim/ros/params.py on their own (no node): the time limit on work done inside a
-set-parameters callback, and the scene reader that never blocks."""
+set-parameters callback, and the scene reader (scene.py's, shared with the CLI) that never blocks."""
 import os
 import threading
 import time
 
 import pytest
 
-from flagbot_sim.ros.params import MAX_SCENE_BYTES, TimeLimited, node_scene, read_scene_file
-from flagbot_sim.scene import SceneError, load_scene
+from flagbot_sim.ros.params import TimeLimited, node_scene
+from flagbot_sim.scene import MAX_FILE_BYTES, SceneError, load_scene, read_scene_text
 
 
 def test_time_limited_work_is_refused_when_it_overruns_and_blocks_nothing_after():
@@ -30,20 +30,20 @@ def test_scene_reader_refuses_fifos_directories_and_big_or_binary_files_without_
     fifo = tmp_path / "s.toml"
     os.mkfifo(fifo)              # nobody writes: a blocking open or read would hang this test
     with pytest.raises(SceneError, match="FIFO"):
-        read_scene_file(fifo)
+        read_scene_text(fifo)
     with pytest.raises(SceneError, match="directory"):
-        read_scene_file(tmp_path)
+        read_scene_text(tmp_path)
     big = tmp_path / "big.toml"
-    big.write_bytes(b"#" * (MAX_SCENE_BYTES + 1))
-    with pytest.raises(SceneError, match="bytes"):
-        read_scene_file(big)
+    big.write_bytes(b"#" * (MAX_FILE_BYTES + 1))
+    with pytest.raises(SceneError, match="larger than 1 MiB"):
+        read_scene_text(big)
     latin = tmp_path / "latin.toml"
     latin.write_bytes(b"[scene]\nname = \"caf\xe9\"\n")
-    with pytest.raises(SceneError, match="not UTF-8 text .byte 19 is 0xe9"):
-        read_scene_file(latin)
+    with pytest.raises(SceneError, match="not UTF-8 text .TOML must be.: byte 0xe9 at line 2, column 12"):
+        read_scene_text(latin)
     ok = tmp_path / "ok.toml"
     ok.write_text("[robot]\nn_flagella = 3\n")
-    assert read_scene_file(ok) == "[robot]\nn_flagella = 3\n"
+    assert read_scene_text(ok) == "[robot]\nn_flagella = 3\n"
     assert node_scene(str(ok), 0, []).robot.n_flagella == 3
     assert node_scene(str(ok), 4, ["flagellum.length=0.2"]).robot.n_flagella == 4
 

@@ -142,7 +142,7 @@ def test_scene_paths_that_are_not_regular_files_are_refused(tmp_path):
     fifo = tmp_path / "fifo.toml"
     os.mkfifo(fifo)                       # reading a FIFO would block forever
     for target, words in ((fifo, "not a regular file"), (tmp_path, "directory"), ("", "empty"),
-                          ("a\0b", "cannot be read"), ("x" * 5000 + ".toml", "cannot be read")):
+                          ("a\0b", "holds a NUL (U+0000)"), ("x" * 5000 + ".toml", "cannot be read")):
         with pytest.raises(SceneError) as exc:
             resolve_scene_path(target)
         assert words in str(exc.value) and len(str(exc.value)) < 300, str(exc.value)

@@ -1,14 +1,14 @@
 """Node parameters declared from one spec list, so the descriptors, `--help` and msg_docs/ say the same thing.
 
-Also the checks a node applies to a value before anything changes: bounded strings, frame names, and a scene
-loader (:func:`node_scene`) that refuses anything other than a readable regular UTF-8 file of sane size without
-ever blocking on it, and turns every failure into a :class:`SceneError` with a one-line reason.
+Also the checks a node applies to a value before anything changes: bounded strings without control characters,
+frame names, a recording path, and the scene a node runs (:func:`node_scene`: scene.py's one loader, which refuses
+anything other than a readable regular UTF-8 file of sane size without ever blocking on it, with every failure
+turned into a :class:`SceneError` with a one-line reason).
 """
 from __future__ import annotations
 
 import math
 import os
-import stat
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,13 +18,12 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.parameter import Parameter
 
-from ..scene import Scene, SceneError, node_overrides, resolve_scene_path, scene_from_text
+from ..scene import Scene, SceneError, control_character, load_scene, node_overrides
 from .runtime import one_line
 
 MAX_STRING = 4096            # longest accepted string parameter (a path, a scene name, one override)
 MAX_OVERRIDES = 64           # most entries in scene_overrides
 MAX_FRAME = 256              # longest frame id
-MAX_SCENE_BYTES = 1 << 20    # largest scene file read (the built-in ones are ~2 KiB)
 T = TypeVar("T")
 
 #: the parameters that together choose a node's scene
@@ -133,9 +132,40 @@ def msg_docs_dir() -> Path:
 
 
 def text_refusal(name: str, value, limit: int = MAX_STRING) -> str | None:
-    """Why a string parameter value is refused: longer than ``limit``; None if accepted."""
-    if isinstance(value, str) and len(value) > limit:
-        return f"{name} is {len(value)} characters long; at most {limit} are accepted"
+    """Why a string parameter value is refused: longer than ``limit``, or holding a control character (a newline,
+    a NUL, ...: a name, a path, an override is one line); None if accepted."""
+    if isinstance(value, str):
+        if len(value) > limit:
+            return f"{name} is {len(value)} characters long; at most {limit} are accepted"
+        bad = control_character(value)
+        if bad:
+            return f"{name} = {one_line(repr(value), 120)} holds {bad}: it must be one line of printable text"
+    return None
+
+
+def record_refusal(path: str) -> str | None:
+    """Why ``record`` = ``path`` is refused before the recorder opens it (None: the recorder decides): a control
+    character (text_refusal), or a symbolic link, at the name given or at the '.mcap' name the writer makes of it,
+    whose target does not exist: opening it would create that target, a file of another name, elsewhere. (A link
+    to an existing file or directory is refused by the writer, as that file or directory is.)
+
+    A NUL never gets here through ROS: rclpy's string conversion ends the value at its first NUL (in the client,
+    on serialisation, and in the node, on deserialisation), so the node receives and records to the part before
+    it; this check refuses the NUL for the values that do reach the node whole."""
+    reason = text_refusal("record", path)
+    if reason or not isinstance(path, str) or not path:
+        return reason
+    given = Path(path)
+    for p in (given, given if given.suffix == ".mcap" else given.with_name(given.name + ".mcap")):
+        try:
+            dangling = p.is_symlink() and not p.exists()
+            target = os.readlink(p) if dangling else ""
+        except (OSError, ValueError):        # unreadable: the writer reports it
+            continue
+        if dangling:
+            return (f"record = {one_line(repr(path), 120)}: {one_line(str(p), 120)} is a symbolic link to "
+                    f"{one_line(repr(target), 120)}, which does not exist: recording would create that file "
+                    "instead; give the file's own name")
     return None
 
 
@@ -148,43 +178,6 @@ def frame_refusal(name: str, value: str) -> str | None:
     if any(c.isspace() or not c.isprintable() for c in value):
         return f"{name} = {one_line(repr(value), 80)}: a frame id holds no spaces or control characters"
     return None
-
-
-def read_scene_file(path: Path) -> str:
-    """The text of a scene file. Never blocks: the file is opened non-blocking and must be a regular file
-    (a FIFO, a directory or a device is refused before anything is read), at most MAX_SCENE_BYTES, UTF-8."""
-    shown = one_line(repr(str(path)), 120)
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
-    except OSError as exc:
-        raise SceneError(f"scene file {shown} cannot be opened: {exc.strerror or exc}") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
-                    else "a device or socket")
-            raise SceneError(f"scene {shown} is {kind}, not a scene file")
-        if st.st_size > MAX_SCENE_BYTES:
-            raise SceneError(f"scene file {shown} is {st.st_size} bytes; at most {MAX_SCENE_BYTES} are read")
-        chunks, size = [], 0
-        while size <= MAX_SCENE_BYTES:      # a file that grows while being read is cut off here
-            chunk = os.read(fd, 65536)
-            if not chunk:
-                break
-            chunks.append(chunk)
-            size += len(chunk)
-    except OSError as exc:
-        raise SceneError(f"scene file {shown} cannot be read: {exc.strerror or exc}") from None
-    finally:
-        os.close(fd)
-    if size > MAX_SCENE_BYTES:
-        raise SceneError(f"scene file {shown} is larger than {MAX_SCENE_BYTES} bytes")
-    data = b"".join(chunks)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SceneError(f"scene file {shown} is not UTF-8 text (byte {exc.start} is {data[exc.start]:#04x})") \
-            from None
 
 
 def node_scene(scene, n_flagella: int, scene_overrides) -> Scene:
@@ -205,11 +198,7 @@ def node_scene(scene, n_flagella: int, scene_overrides) -> Scene:
     if reason:
         raise SceneError(reason)
     try:
-        path = resolve_scene_path(scene)
-        result = scene_from_text(read_scene_file(path), path)     # as load_scene, on text read with a limit
-        extra = node_overrides(n_flagella, overrides)
-        if extra:
-            result = result.with_overrides(extra)
+        result = load_scene(scene, node_overrides(n_flagella, overrides))    # the CLI's reading, to the byte
     except SceneError as exc:
         raise SceneError(one_line(str(exc))) from None
     except (RecursionError, MemoryError) as exc:

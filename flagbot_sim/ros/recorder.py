@@ -249,8 +249,9 @@ class Recorder:
 
 
 def scene_text(name_or_path: str) -> str:
-    from ..scene import resolve_scene_path
-    return resolve_scene_path(name_or_path).read_text()
+    """A scene file's text as the CLI and the nodes read it (scene.py's one reader: a BOM dropped, never blocking)."""
+    from ..scene import read_scene_text, resolve_scene_path
+    return read_scene_text(resolve_scene_path(name_or_path))
 
 
 def fetch_parameters(node: Node, executor, target: str, timeout: float = 10.0) -> dict:

@@ -38,7 +38,7 @@ from . import convert
 from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
-                     node_scene, text_refusal)
+                     node_scene, record_refusal, text_refusal)
 from .runtime import one_line, run_node, wants_help
 
 PARAMS = [
@@ -145,6 +145,7 @@ class SimNode(Node):
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_description = self.create_publisher(String, names.ROBOT_DESCRIPTION, latched)
+        self.pub_resets = self.create_publisher(DiagnosticArray, names.RESETS, latched)
         self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos)
         self.create_service(Trigger, names.RESET, self._on_reset)
         self.create_service(SetBool, names.PAUSE, self._on_pause)
@@ -299,6 +300,7 @@ class SimNode(Node):
             self.sim.set_omega(omega)        # reset restores the robot, not the operator's command
         self.last_error = ""
         self._anchor()
+        self._publish_reset("reset")
         self._publish_state(force_markers=True)
         response.success = True
         response.message = f"robot back at its initial state at simulation time {self.sim_time:.3f} s"
@@ -324,7 +326,7 @@ class SimNode(Node):
                     raise Refused(reason)
         for name in ("scene", "record", "foxglove_host"):
             if name in p:
-                reason = text_refusal(name, p[name])
+                reason = record_refusal(p[name]) if name == "record" else text_refusal(name, p[name])
                 if reason:
                     raise Refused(reason)
         # rclpy's time source checks use_sim_time only after this node's callback has accepted the set
@@ -389,6 +391,7 @@ class SimNode(Node):
             self.time_offset += self.sim.time
             self.sim = sim
             self._anchor()
+            self._publish_reset("rebuild")
             self.get_logger().info(f"rebuilt the simulation: scene {sim.scene.scene.name}, "
                                    f"n = {sim.scene.robot.n_flagella}")
         if "publish_rate" in new:
@@ -491,6 +494,16 @@ class SimNode(Node):
             arr.markers.insert(0, convert.delete_all_marker(t, self.frame_id))
         self._marker_ids = ids
         return arr
+
+    def _publish_reset(self, cause: str) -> None:
+        """Record a restart of the simulated state on ``resets`` (latched, so a later recorder still learns of the
+        last one): from this stamp on the robot starts again from its initial state in this scene with this
+        command. ``replay --resimulate`` follows a recording across it (msg_docs/sim_node.md)."""
+        what = ("~/reset: the robot is back at its initial state" if cause == "reset" else
+                "rebuilt: a new scene, n_flagella or scene_overrides, from its initial state")
+        self.pub_resets.publish(convert.diagnostics_msg(
+            self.sim_time, "flagbot_sim: reset", "OK", what,
+            {"cause": cause, "omega_T_rad_s": repr(float(self.sim.omega_T)), "scene_toml": self.sim.scene.to_toml()}))
 
     def _publish_description(self) -> None:
         """robot_description (latched): the URDF of head and plate, whenever it changes."""

@@ -98,32 +98,19 @@ def _joint_values(js_rows, speed_rows) -> dict:
 
 
 def _resimulated(path, namespace, max_rate) -> RecordedRun:
-    """Frames from re-running the recorded commands (resim.py's schedule) at the recorded joint_states stamps."""
-    from ..physics import Simulation
-    from ..resim import command_schedule, motor_samples, recorded_scene
-    with BagReader(path) as r:
-        meta = r.run_metadata()
-        scene = recorded_scene(meta, path)
-        js_topic = find_topic(r.topics, JOINT_STATES, namespace)
-        js = [m for _, _, m in r.decoded(js_topic)] if js_topic else []
-    motor = motor_samples(js)
-    if motor is None:
-        from ..resim import ResimulationError
-        raise ResimulationError(f"{path}: no markers, and no joint_states 'motor' joint to re-simulate from")
-    _, t, angle, rate = motor
-    schedule, notes = command_schedule(t, angle, rate, scene.time.dt)
-    sim = Simulation(scene)
-    sim.set_omega(schedule[0][1])
-    dt, nxt, frames, last = scene.time.dt, 1, [], -math.inf
+    """Frames from re-running the recorded commands (resim.py's plan: its schedule, across recorded restarts) at
+    the recorded joint_states stamps."""
+    import dataclasses
+
+    from ..resim import plan_recording, replay
+    plan, _ = plan_recording(path, namespace, with_pose=False)      # ResimulationError: nothing to re-run
+    scene = plan.segments[0].scene if plan.segments else None
+    notes = plan.notes + plan.uncompared
+    frames, last = [], -math.inf
     spacing = 1.0 / max_rate if max_rate else 0.0
-    for target in t:
-        while sim.time < target - 0.5 * dt:
-            if nxt < len(schedule) and sim.time >= schedule[nxt][0] - 0.5 * dt:
-                sim.set_omega(schedule[nxt][1])
-                nxt += 1
-            sim.step()
-        if sim.time - last >= spacing - 1e-9:
-            frames.append(RobotGeometry.from_simulation(sim))
-            last = sim.time
+    for k, sim, _ in replay(plan):
+        if sim is not None and plan.t[k] - last >= spacing - 1e-9:
+            frames.append(dataclasses.replace(RobotGeometry.from_simulation(sim), t=float(plan.t[k])))
+            last = plan.t[k]
     return RecordedRun(str(path), frames, scene, "resimulated",
                        notes + ["no markers recorded: the shape is re-simulated from the recorded commands"])
