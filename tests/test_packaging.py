@@ -196,6 +196,11 @@ def test_launch_file_names_only_what_the_installed_package_has(prefix):
 
     nodes = _calls(tree, "Node")
     assert sorted(ast.literal_eval(_kw(n, "executable")) for n in nodes) == ["beam_node", "cmd_profile", "sim_node"]
+    # the managed sim_node (lifecycle:=true): the same executable and parameters, its class chosen on the command line
+    managed = _calls(tree, "LifecycleNode")
+    assert [ast.literal_eval(_kw(n, "executable")) for n in managed] == ["sim_node"]
+    assert ast.literal_eval(_kw(managed[0], "ros_arguments")) == ["-p", "lifecycle:=true"]
+    nodes += managed
     py_types = {"str": "string", "int": "int", "float": "double", "bool": "bool"}
     for node in nodes:
         assert ast.literal_eval(_kw(node, "package")) == PACKAGE
@@ -203,6 +208,8 @@ def test_launch_file_names_only_what_the_installed_package_has(prefix):
         exe_path = prefix / "lib" / PACKAGE / exe
         assert exe_path.is_file() and os.access(exe_path, os.X_OK), f"{exe}: not installed in lib/{PACKAGE}"
         params = _kw(node, "parameters")
+        if isinstance(params, ast.Name):          # a list assigned in the same file
+            params = module_vars[params.id]
         for d in (ast.walk(params) if params is not None else ()):
             if not isinstance(d, ast.Dict):
                 continue

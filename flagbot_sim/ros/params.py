@@ -38,6 +38,7 @@ class ParamSpec:
     unit: str = ""
     range: tuple | None = None          # (low, high) inclusive
     choices: tuple = field(default_factory=tuple)
+    read_only: bool = False             # set at start only (rclpy refuses a later set)
 
     @property
     def type_name(self) -> str:
@@ -52,7 +53,8 @@ class ParamSpec:
         return "string"
 
     def descriptor(self) -> ParameterDescriptor:
-        d = ParameterDescriptor(description=self.description + (f" [{self.unit}]" if self.unit else ""))
+        d = ParameterDescriptor(description=self.description + (f" [{self.unit}]" if self.unit else ""),
+                                read_only=self.read_only)
         if self.choices:
             d.additional_constraints = "one of: " + ", ".join(self.choices)
         if self.range is not None:
@@ -74,6 +76,30 @@ class ParamSpec:
         if self.choices and value not in self.choices:
             return f"{self.name} = {value!r}: choose one of {', '.join(self.choices)}"
         return None
+
+
+#: YAML's spellings of true, as rcl reads a ``-p NAME:=VALUE`` value
+_TRUE = ("true", "True", "TRUE")
+
+
+def lifecycle_requested(argv: list[str], node: str = "sim_node") -> bool:
+    """Whether ``-p lifecycle:=true`` (or ``--param``, or ``NODE:lifecycle:=true``) is among ``argv``'s
+    ``--ros-args`` sections (the last one wins). The node's class is chosen before the node exists, so from the
+    command line only; the declared parameter is checked against this choice once it exists."""
+    value, in_ros, i = None, False, 0
+    while i < len(argv):
+        word = argv[i]
+        if word == "--ros-args":
+            in_ros = True
+        elif word == "--":
+            in_ros = False
+        elif in_ros and word in ("-p", "--param") and i + 1 < len(argv):
+            key, sep, val = argv[i + 1].partition(":=")
+            if sep and key in ("lifecycle", f"{node}:lifecycle"):
+                value = val
+            i += 1
+        i += 1
+    return value in _TRUE
 
 
 def declare(node, specs: list[ParamSpec]) -> None:

@@ -21,6 +21,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock as RclClock, ClockType
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -38,7 +39,7 @@ from . import convert
 from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
-                     node_scene, record_refusal, text_refusal)
+                     lifecycle_requested, node_scene, record_refusal, text_refusal)
 from .runtime import one_line, run_node, wants_help
 
 PARAMS = [
@@ -63,6 +64,9 @@ PARAMS = [
     ParamSpec("child_frame_id", "head", "head body frame (odometry child frame)"),
     ParamSpec("foxglove_port", 0, "serve the live 3-D view to the Foxglove app on this WebSocket port (needs the "
               "[view] extra); 0 = off", range=(0, 65535)),
+    ParamSpec("lifecycle", False, "run as a managed (lifecycle) node: start unconfigured and follow "
+              "~/change_state (configure, activate, deactivate, cleanup, shutdown); command line only "
+              "(-p lifecycle:=true)", read_only=True),
     ParamSpec("foxglove_host", "127.0.0.1", "address the live view listens on (loopback unless you say "
               "otherwise)"),
 ]
@@ -110,75 +114,141 @@ def recording_error(recorder) -> str:
     return (recorder.error or "") if recorder is not None else ""
 
 
-class SimNode(Node):
-    def __init__(self):
-        super().__init__("sim_node")
+class SimDevice:
+    """The simulated robot as a device: everything sim_node does, for the plain node (:class:`SimNode`, which
+    configures and activates itself at start) and the managed one (:class:`ManagedSimNode`, whose lifecycle
+    transitions call the same steps). The steps:
+
+    * :meth:`_declare` (construction): the parameters and their validation; nothing else exists yet.
+    * :meth:`_configure`: read and validate the scene, build the simulation, create the topics and services,
+      open the recording and the live view. Raises with the reason and leaves nothing behind when it cannot.
+    * :meth:`_activate` / :meth:`_deactivate`: start / stop the timer that steps and publishes ("hold").
+    * :meth:`_cleanup`: close the recording and the view, destroy the topics and services, drop the simulation.
+    """
+
+    def _declare(self, managed: bool) -> None:
         declare(self, PARAMS)
+        if self.get_parameter("lifecycle").value != managed:
+            raise ValueError("lifecycle is chosen on the command line (sim_node --ros-args -p lifecycle:=true); "
+                             "a parameters file cannot switch it")
         p = self._params()
         try:
             self._check_values(p)
             same_frames(p)
         except Refused as exc:
             raise ValueError(str(exc)) from None
-        self.sim = build_simulation(p["scene"], p["n_flagella"], p["scene_overrides"])
+        self.sim = None
+        self.recorder = None
+        self.view = None
+        self.timer = None
+        self._entities: list = []               # the publishers, subscriptions and services of a configuration
+        self.time_offset = 0.0                   # keeps /clock monotonic across resets and configurations
+        self.recording_failed = False            # a recording failed to write during this run: exit code 1
+        self._said_sim_time = False
         self._builder = TimeLimited(BUILD_LIMIT, "the scene load and simulation build")
-        self.publish_rate = p["publish_rate"]
-        self.marker_rate = p["marker_rate"]
-        self.rtf = p["real_time_factor"]
-        self.max_omega = p["max_omega"]
-        self.frame_id = p["frame_id"]
-        self.child_frame_id = p["child_frame_id"]
-        if self.sim.model.driver is not None:
-            self.sim.set_omega(p["initial_omega"])
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
+    @property
+    def configured(self) -> bool:
+        return self.sim is not None
+
+    def _configure(self) -> None:
+        """Build the device from the parameters; on any failure raise (Refused, SceneError, ValueError) with
+        everything built so far torn down again."""
+        p = self._params()
+        sim = build_simulation(p["scene"], p["n_flagella"], p["scene_overrides"])
+        try:
+            self._create_entities()
+            self.sim = sim
+            self.publish_rate = p["publish_rate"]
+            self.marker_rate = p["marker_rate"]
+            self.rtf = p["real_time_factor"]
+            self.max_omega = p["max_omega"]
+            self.frame_id = p["frame_id"]
+            self.child_frame_id = p["child_frame_id"]
+            if sim.model.driver is not None:
+                sim.set_omega(p["initial_omega"])
+            self.paused = bool(p["start_paused"])
+            self.rejected = 0
+            self.step_failures = 0
+            self.last_error = ""
+            self.withheld = 0
+            self.pacer = Pacer(self.rtf, sim.time)
+            self._last_marker = -math.inf
+            self._last_diag = -math.inf
+            self._marker_ids: set | None = None     # (ns, id) of the markers last published
+            self._description = ""
+            if self.time_offset > 0.0:   # a managed node configured again: the run starts afresh from here
+                self._publish_reset("configure")
+            if p["record"]:
+                self.recorder = self._open_recorder(p, sim)
+                self.get_logger().info(f"recording to {self.recorder.path}")
+            if p["foxglove_port"]:
+                self.view = self._open_view(p)
+                self.get_logger().info(f"live view for the Foxglove app at {self.view.url}")
+        except BaseException:
+            self._cleanup()
+            raise
+
+    def _create_entities(self) -> None:
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub_clock = self.create_publisher(Clock, names.CLOCK, qos)
-        self.pub_pose = self.create_publisher(PoseStamped, names.HEAD_POSE, qos)
-        self.pub_odom = self.create_publisher(Odometry, names.ODOM, qos)
-        self.pub_joints = self.create_publisher(JointState, names.JOINT_STATES, qos)
-        self.pub_omega_h = self.create_publisher(Float64, names.OMEGA_H, qos)
-        self.pub_omega_t = self.create_publisher(Float64, names.OMEGA_T, qos)
-        self.pub_speed = self.create_publisher(Float64, names.SPEED, qos)
-        self.pub_markers = self.create_publisher(MarkerArray, names.MARKERS, QoSProfile(depth=2))
-        self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, qos)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_description = self.create_publisher(String, names.ROBOT_DESCRIPTION, latched)
-        self.pub_resets = self.create_publisher(DiagnosticArray, names.RESETS, latched)
-        self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos)
-        self.create_service(Trigger, names.RESET, self._on_reset)
-        self.create_service(SetBool, names.PAUSE, self._on_pause)
-        self._description = ""
-        self._publish_description()
 
-        self.paused = bool(p["start_paused"])
-        self.rejected = 0
-        self.step_failures = 0
-        self.last_error = ""
-        self.withheld = 0
-        self.time_offset = 0.0           # keeps /clock monotonic across resets
-        self.pacer = Pacer(self.rtf, self.sim.time)
-        self._last_marker = -math.inf
-        self._last_diag = -math.inf
-        self._marker_ids: set | None = None     # (ns, id) of the markers last published
-        self.recorder = None
-        self.recording_failed = False            # a recording failed to write during this run: exit code 1
-        if p["record"]:
-            self.recorder = self._open_recorder(p, self.sim)
-            self.get_logger().info(f"recording to {self.recorder.path}")
-        self.view = None
-        if p["foxglove_port"]:
-            self.view = self._open_view(p)
-            self.get_logger().info(f"live view for the Foxglove app at {self.view.url}")
+        def pub(kind, topic, q=qos):
+            p = self.create_publisher(kind, topic, q)
+            self._entities.append(p)
+            return p
+        self.pub_clock = pub(Clock, names.CLOCK)
+        self.pub_pose = pub(PoseStamped, names.HEAD_POSE)
+        self.pub_odom = pub(Odometry, names.ODOM)
+        self.pub_joints = pub(JointState, names.JOINT_STATES)
+        self.pub_omega_h = pub(Float64, names.OMEGA_H)
+        self.pub_omega_t = pub(Float64, names.OMEGA_T)
+        self.pub_speed = pub(Float64, names.SPEED)
+        self.pub_markers = pub(MarkerArray, names.MARKERS, QoSProfile(depth=2))
+        self.pub_diag = pub(DiagnosticArray, names.DIAGNOSTICS)
+        self.pub_description = pub(String, names.ROBOT_DESCRIPTION, latched)
+        self.pub_resets = pub(DiagnosticArray, names.RESETS, latched)
+        self._entities += [self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos),
+                           self.create_service(Trigger, names.RESET, self._on_reset),
+                           self.create_service(SetBool, names.PAUSE, self._on_pause)]
+
+    def _activate(self) -> None:
+        self._publish_description()
+        self._anchor()
         self.timer = self._make_timer()
-        self._said_sim_time = False
         self.get_logger().info(
             f"flagbot_sim {__version__}: scene {self.sim.scene.scene.name}, n = {self.sim.scene.robot.n_flagella}, "
             f"dt = {self.sim.dt} s, real_time_factor {self.rtf or 'max'}; {configure_dds()}; "
             f"waiting for {names.CMD_OMEGA}")
         if self.get_parameter("use_sim_time").value:
             self._say_sim_time()
+
+    def _deactivate(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+            self.destroy_timer(self.timer)
+            self.timer = None
+
+    def _cleanup(self) -> None:
+        """Back to nothing but the parameters: the recording closed (its summary logged), the view closed, every
+        topic and service destroyed, the simulation dropped; simulated time carries on from where it was."""
+        self._deactivate()
+        if self.view is not None:
+            self.view.close()
+            self.view = None
+        if self.recorder is not None:
+            rec, self.recorder = self.recorder, None
+            self.get_logger().info(self._close_recording(rec))
+        destroy = {"Publisher": self.destroy_publisher, "Subscription": self.destroy_subscription,
+                   "Service": self.destroy_service}
+        for entity in reversed(self._entities):
+            destroy[type(entity).__name__](entity)
+        self._entities.clear()
+        if self.sim is not None:
+            self.time_offset += self.sim.time
+            self.sim = None
 
     # ------------------------------------------------------------------ time
     @property
@@ -301,7 +371,8 @@ class SimNode(Node):
         self.last_error = ""
         self._anchor()
         self._publish_reset("reset")
-        self._publish_state(force_markers=True)
+        if self.timer is not None:          # an inactive managed node holds: it publishes the state once active
+            self._publish_state(force_markers=True)
         response.success = True
         response.message = f"robot back at its initial state at simulation time {self.sim_time:.3f} s"
         return response
@@ -337,7 +408,7 @@ class SimNode(Node):
         new = {p.name: p.value for p in params}
         try:
             plan = self._prepare(new)
-        except (Refused, SceneError) as exc:
+        except (Refused, SceneError, ValueError) as exc:
             return SetParametersResult(successful=False, reason=one_line(str(exc)))
         except Exception as exc:  # noqa: BLE001 - no value may kill the node: refuse what was not foreseen
             return SetParametersResult(successful=False, reason=one_line(f"{type(exc).__name__}: {exc}"))
@@ -354,6 +425,8 @@ class SimNode(Node):
         self._check_values(new)
         after = self._params(new)
         same_frames(after)
+        if not self.configured:      # a managed node not yet configured: the values are checked, the scene and
+            return {}                # the files are at configure (which refuses what cannot be built)
         sim = None
         if set(SCENE_PARAMS) & set(new):
             sim = self._builder.run(lambda: build_simulation(after["scene"], after["n_flagella"],
@@ -384,6 +457,8 @@ class SimNode(Node):
 
     def _apply(self, new: dict, plan: dict) -> None:
         """Put a prepared set in force. Nothing here can refuse."""
+        if not self.configured:
+            return
         sim = plan["sim"]
         if sim is not None:
             if self.sim.model.driver is not None and sim.model.driver is not None:
@@ -396,9 +471,9 @@ class SimNode(Node):
                                    f"n = {sim.scene.robot.n_flagella}")
         if "publish_rate" in new:
             self.publish_rate = float(new["publish_rate"])
-            self.timer.cancel()
-            self.destroy_timer(self.timer)
-            self.timer = self._make_timer()
+            if self.timer is not None:       # (an inactive managed node starts its timer at this rate)
+                self._deactivate()
+                self.timer = self._make_timer()
         if "real_time_factor" in new:
             self.rtf = float(new["real_time_factor"])
             self.pacer.set_rtf(self.rtf, self.sim.time)
@@ -549,6 +624,60 @@ class SimNode(Node):
                                                       values))
 
 
+class SimNode(SimDevice, Node):
+    """sim_node as a plain node: configured and active from the start (a bad scene or value ends the process)."""
+
+    def __init__(self):
+        Node.__init__(self, "sim_node")
+        self._declare(managed=False)
+        self._configure()
+        self._activate()
+
+
+class ManagedSimNode(SimDevice, LifecycleNode):
+    """sim_node as a managed (lifecycle) node, ``-p lifecycle:=true``: it starts unconfigured, and an operator or a
+    launch system brings it up (configure, activate), holds it (deactivate) and tears it down (cleanup,
+    shutdown) through ``~/change_state``. A configure that fails (a bad scene, a file it cannot record to) is
+    refused with the reason in the log, and the node stays unconfigured."""
+
+    def __init__(self):
+        LifecycleNode.__init__(self, "sim_node")
+        self._declare(managed=True)
+        self.get_logger().info(f"flagbot_sim {__version__}: managed node, unconfigured; bring it up with "
+                               f"{self.get_fully_qualified_name()}/change_state (configure, activate)")
+
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        try:
+            self._configure()
+        except (Refused, SceneError, ValueError) as exc:
+            self.get_logger().error(f"configure refused: {one_line(str(exc))}")
+            return TransitionCallbackReturn.FAILURE
+        self.get_logger().info(f"configured: scene {self.sim.scene.scene.name}, n = "
+                               f"{self.sim.scene.robot.n_flagella}, dt = {self.sim.dt} s")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        self._activate()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self._deactivate()
+        self.get_logger().info(f"inactive: holding at simulation time {self.sim_time:.3f} s")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state) -> TransitionCallbackReturn:
+        self._cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     if wants_help(argv):
@@ -556,7 +685,12 @@ def main(argv: list[str] | None = None) -> int:
                         "topics: sub cmd_omega; pub /clock, head_pose, odom, joint_states, omega_h, omega_t, speed, "
                         "markers, robot_description, /diagnostics; services: ~/reset, ~/pause"))
         return 0
-    return run_node(SimNode, argv)
+    try:
+        managed = lifecycle_requested(argv)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return run_node(ManagedSimNode if managed else SimNode, argv)
 
 
 if __name__ == "__main__":
