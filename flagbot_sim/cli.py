@@ -69,9 +69,14 @@ def cmd_run(args) -> int:
     from .view.cli import RunView
     view = RunView.from_args(args)      # --view: the run served to the Foxglove app (view/cli.py), else None
 
+    warnings: list[str] = []
+
     def progress(s) -> None:
         if view is not None:
             view.tick(s)
+        if s.cutting and not warnings:        # once: what slows the run, with the numbers
+            warnings.append(s.cutting_report())
+            bar.note(f"warning: {warnings[0]}")
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
@@ -101,6 +106,8 @@ def cmd_run(args) -> int:
         paced = time.perf_counter() - paced0
         out["paced_wall_seconds"] = paced
         out["paced_real_time_factor"] = sim.time / paced if paced > 0 else None
+    if warnings:
+        out["warnings"] = warnings
     if error:
         out["error"] = error
     if args.json:
@@ -145,6 +152,8 @@ def format_summary(scene, out: dict) -> str:
                    f"{g('paced_real_time_factor', '.2f')}")
     lines.append(f"  {out['steps']} steps, {out['newton_iterations']} Newton iterations, "
                  f"{out['dt_reductions']} dt reductions, {timing}")
+    for w in out.get("warnings", []):
+        lines.append(f"  WARNING: {w}")
     if "error" in out:
         lines.append(f"  ERROR: {out['error']}")
     return "\n".join(lines)
