@@ -20,6 +20,7 @@ import time
 from typing import Callable, Iterator
 
 import rclpy
+from rclpy.callback_groups import CallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
@@ -69,6 +70,40 @@ class StopRequest:
         for sig, handler in self._saved.items():
             signal.signal(sig, handler)
         self._saved.clear()
+
+
+class Polled(CallbackGroup):
+    """A callback group the executor never runs: its subscriptions are left out of every wait set, and their
+    owner takes the messages itself (:func:`take_all`) when it wants them.
+
+    Why: for each message of a subscription it waits on, rclpy's executor rebuilds its wait set from every
+    entity of the node, wakes, takes, deserialises and calls back in Python, on the thread that also runs the
+    node's timers. For a topic where only the newest message matters (a motor command read once per step), a
+    flood of messages then costs the timer its time; taken in the timer from a depth-1 queue, the cost per
+    tick is one take, whatever the message rate.
+    """
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        pass
+
+
+def take_all(subscription, limit: int) -> list:
+    """The messages waiting in ``subscription``'s queue, oldest first, at most ``limit`` (a subscription in a
+    :class:`Polled` group; its QoS depth bounds how many can wait)."""
+    out = []
+    with subscription.handle:
+        for _ in range(limit):
+            taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+            if taken is None:
+                break
+            out.append(taken[0])
+    return out
 
 
 def release(executor: SingleThreadedExecutor | None, node) -> None:

@@ -40,7 +40,7 @@ from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
                      lifecycle_requested, node_scene, record_refusal, text_refusal)
-from .runtime import one_line, run_node, wants_help
+from .runtime import Polled, one_line, run_node, take_all, wants_help
 
 PARAMS = [
     ParamSpec("scene", "design1", "built-in scene name (design1, design2, ...) or path to a .toml scene file; "
@@ -212,7 +212,10 @@ class SimDevice:
         self.pub_diag = pub(DiagnosticArray, names.DIAGNOSTICS)
         self.pub_description = pub(String, names.ROBOT_DESCRIPTION, latched)
         self.pub_resets = pub(DiagnosticArray, names.RESETS, latched)
-        self._entities += [self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos),
+        # commands are taken in the timer, never by the executor (see _take_commands)
+        self._cmd_sub = self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos,
+                                                 callback_group=Polled())
+        self._entities += [self._cmd_sub,
                            self.create_service(Trigger, names.RESET, self._on_reset),
                            self.create_service(SetBool, names.PAUSE, self._on_pause)]
 
@@ -501,7 +504,17 @@ class SimDevice:
             self._say_sim_time()
 
     # ------------------------------------------------------------------ stepping
+    def _take_commands(self) -> None:
+        """Apply the commands that arrived since the last tick, in order: the newest wins.
+
+        At most the queue depth of them wait (older ones are dropped unseen under a faster stream), so a tick
+        costs a bounded number of takes whatever the message rate; a flood of commands handled by the executor
+        one callback at a time cost the stepping its time (see runtime.Polled)."""
+        for msg in take_all(self._cmd_sub, self._cmd_sub.qos_profile.depth):
+            self._on_cmd(msg)
+
     def _on_timer(self) -> None:
+        self._take_commands()
         wall_start = time.monotonic()
         if not self.paused:
             self._advance(wall_start)
