@@ -17,8 +17,8 @@ import os
 import sys
 import time
 
-from .cliutil import (add_scene_arguments, add_version_argument, broken_pipe_exit, finite_text, json_output,
-                      process_age)
+from .cliutil import (add_scene_arguments, add_version_argument, broken_pipe_exit, fast_exit, finite_text,
+                      json_output, process_age)
 from .scene import RPM, SceneError, TimeSection, load_scene
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
@@ -297,17 +297,6 @@ def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
 FAST_EXIT = frozenset({"run", "scenes", "compile", "beam", "sweep-plot", "completion"})
 
 
-def _fast_exit() -> None:
-    """Make the interpreter's shutdown cheap: move every object into the permanent generation (``gc.freeze``), so
-    the collections at finalization do not walk the ~10^6 objects numba, scipy and the model leave behind. That
-    walk took 0.4-0.5 s, a third of a warm ``flagbot run``; objects still die by reference counting, and the
-    command has closed and flushed what it wrote."""
-    import gc
-    sys.stdout.flush()
-    sys.stderr.flush()
-    gc.freeze()
-
-
 def main(argv: list[str] | None = None) -> int:
     """The ``flagbot`` command. With ``argv`` None (the process's own command line: the console script,
     ``python -m flagbot_sim``) the process ends after it, and the compute-only commands exit fast."""
@@ -331,4 +320,4 @@ def main(argv: list[str] | None = None) -> int:
         return report_missing(missing)
     finally:
         if from_command_line and command in FAST_EXIT:
-            _fast_exit()
+            fast_exit()

@@ -721,6 +721,7 @@ class ManagedSimNode(SimDevice, LifecycleNode):
 
 
 def main(argv: list[str] | None = None) -> int:
+    process_exit = argv is None             # the console script / python -m: the process ends with this
     argv = sys.argv if argv is None else argv
     if wants_help(argv):
         print(help_text("sim_node", __doc__.strip().splitlines()[0], PARAMS,
@@ -732,7 +733,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return run_node(ManagedSimNode if managed else SimNode, argv)
+    return run_node(ManagedSimNode if managed else SimNode, argv, process_exit=process_exit)
 
 
 if __name__ == "__main__":
