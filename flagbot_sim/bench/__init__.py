@@ -48,6 +48,8 @@ def flood_arguments(ap) -> None:
     ap.add_argument("--seconds", type=float, default=8.0, help="wall seconds measured per phase")
     ap.add_argument("--repeat", type=int, default=2, help="rounds of the interleaved phases")
     ap.add_argument("--scene", default="design1", help="scene sim_node runs (default design1)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene value (sim_node's scene_overrides), e.g. --set scene.preset=accurate")
     ap.add_argument("--publish-rate", type=float, default=50.0, help="sim_node's publish_rate (Hz)")
     ap.add_argument("--no-realtime", action="store_true", help="skip the real_time_factor 1 /clock check")
 

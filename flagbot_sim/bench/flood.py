@@ -145,9 +145,10 @@ def figures(samples: list[tuple[float, float]]) -> dict:
             "max_gap": max(gaps)}
 
 
-def start_sim_node(env: dict, scene: str, rtf: float, publish_rate: float):
+def start_sim_node(env: dict, scene: str, overrides: list[str], rtf: float, publish_rate: float):
+    extra = ["-p", f"scene_overrides:={json.dumps(list(overrides))}"] if overrides else []
     return subprocess.Popen([sys.executable, "-m", "flagbot_sim.ros.sim_node", "--ros-args", "-p", f"scene:={scene}",
-                             "-p", f"real_time_factor:={rtf}", "-p", f"initial_omega:={OMEGA}",
+                             *extra, "-p", f"real_time_factor:={rtf}", "-p", f"initial_omega:={OMEGA}",
                              "-p", f"publish_rate:={publish_rate}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
 
@@ -184,11 +185,11 @@ def phase(watch: ClockWatch, sim_pid: int, rate: float, seconds: float, env: dic
     return out
 
 
-def measure(rates: list[float], seconds: float, repeat: int, rtf: float, scene: str,
+def measure(rates: list[float], seconds: float, repeat: int, rtf: float, scene: str, overrides: list[str],
             publish_rate: float) -> list[dict]:
     import rclpy
     env = _env()
-    sim = start_sim_node(env, scene, rtf, publish_rate)
+    sim = start_sim_node(env, scene, overrides, rtf, publish_rate)
     os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR",
                                            "FASTRTPS_DEFAULT_PROFILES_FILE") if k in env})
     rclpy.init()
@@ -246,15 +247,17 @@ def run(args) -> int:
         raise SceneError(f"--rates must list rates between 0 and 1e6 msg/s, got {args.rates!r}")
     if args.repeat < 1 or not (1.0 <= args.seconds <= 600.0):
         raise SceneError("--repeat must be at least 1 and --seconds between 1 and 600")
-    load_scene(args.scene)          # a bad scene is refused before anything starts
+    load_scene(args.scene, args.overrides)          # a bad scene is refused before anything starts
     if 0.0 not in rates:
         rates = [0.0, *rates]
-    print(f"sim_node under a cmd_omega flood: scene {args.scene}, omega_T = {OMEGA} rad/s; {os.cpu_count()} cores, "
+    scene = " ".join([args.scene, *(f"--set {o}" for o in args.overrides)])
+    print(f"sim_node under a cmd_omega flood: scene {scene}, omega_T = {OMEGA} rad/s; {os.cpu_count()} cores, "
           f"{load()}", flush=True)
-    rows = measure(rates, args.seconds, args.repeat, 0.0, args.scene, args.publish_rate)
+    scene_args = (args.scene, args.overrides, args.publish_rate)
+    rows = measure(rates, args.seconds, args.repeat, 0.0, *scene_args)
     print(table(rows, 0.0, args.publish_rate), flush=True)
     if not args.no_realtime:
-        rt = measure([0.0, max(rates)], args.seconds, args.repeat, 1.0, args.scene, args.publish_rate)
+        rt = measure([0.0, max(rates)], args.seconds, args.repeat, 1.0, *scene_args)
         print(table(rt, 1.0, args.publish_rate), flush=True)
     print(f"({load()} after)")
     return 0

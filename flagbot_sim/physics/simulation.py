@@ -162,8 +162,8 @@ class Simulation:
     def cutting_report(self) -> str:
         """What the cut steps look like, with the numbers (for a warning while :attr:`cutting`)."""
         num = self.scene.numerics
-        return (f"steps are being cut repeatedly: {self._recent_cuts} dt reductions in the last {len(self._recent)} steps "
-                f"({self.reductions} in {self.steps} steps so far), sub-steps down to "
+        return (f"steps are being cut repeatedly: {self._recent_cuts} dt reductions in the last "
+                f"{len(self._recent)} steps ({self.reductions} in {self.steps} steps so far), sub-steps down to "
                 f"{min(h for _, h in self._recent):.3g} s of time.dt = {self.dt:g} s: Newton does not converge "
                 f"within numerics.max_iterations = {num.max_iterations} at the step asked for (tolerance "
                 f"{self.model.force_tol:.3g} N), so the run is slow")
