@@ -17,8 +17,8 @@ import os
 import sys
 import time
 
-from .cliutil import (add_scene_arguments, add_version_argument, broken_pipe_exit, finite_text, json_output,
-                      process_age)
+from .cliutil import (add_scene_arguments, add_version_argument, broken_pipe_exit, fast_exit, finite_text,
+                      json_output, process_age)
 from .scene import RPM, SceneError, TimeSection, load_scene
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
@@ -69,9 +69,14 @@ def cmd_run(args) -> int:
     from .view.cli import RunView
     view = RunView.from_args(args)      # --view: the run served to the Foxglove app (view/cli.py), else None
 
+    warnings: list[str] = []
+
     def progress(s) -> None:
         if view is not None:
             view.tick(s)
+        if s.cutting and not warnings:        # once: what slows the run, with the numbers
+            warnings.append(s.cutting_report())
+            bar.note(f"warning: {warnings[0]}")
         k = s.steps - 1
         if k % 10 == 0 or k == n_steps - 1:
             ob = s.observer
@@ -101,6 +106,8 @@ def cmd_run(args) -> int:
         paced = time.perf_counter() - paced0
         out["paced_wall_seconds"] = paced
         out["paced_real_time_factor"] = sim.time / paced if paced > 0 else None
+    if warnings:
+        out["warnings"] = warnings
     if error:
         out["error"] = error
     if args.json:
@@ -145,6 +152,8 @@ def format_summary(scene, out: dict) -> str:
                    f"{g('paced_real_time_factor', '.2f')}")
     lines.append(f"  {out['steps']} steps, {out['newton_iterations']} Newton iterations, "
                  f"{out['dt_reductions']} dt reductions, {timing}")
+    for w in out.get("warnings", []):
+        lines.append(f"  WARNING: {w}")
     if "error" in out:
         lines.append(f"  ERROR: {out['error']}")
     return "\n".join(lines)
@@ -288,17 +297,6 @@ def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
 FAST_EXIT = frozenset({"run", "scenes", "compile", "beam", "sweep-plot", "completion"})
 
 
-def _fast_exit() -> None:
-    """Make the interpreter's shutdown cheap: move every object into the permanent generation (``gc.freeze``), so
-    the collections at finalization do not walk the ~10^6 objects numba, scipy and the model leave behind. That
-    walk took 0.4-0.5 s, a third of a warm ``flagbot run``; objects still die by reference counting, and the
-    command has closed and flushed what it wrote."""
-    import gc
-    sys.stdout.flush()
-    sys.stderr.flush()
-    gc.freeze()
-
-
 def main(argv: list[str] | None = None) -> int:
     """The ``flagbot`` command. With ``argv`` None (the process's own command line: the console script,
     ``python -m flagbot_sim``) the process ends after it, and the compute-only commands exit fast."""
@@ -322,4 +320,4 @@ def main(argv: list[str] | None = None) -> int:
         return report_missing(missing)
     finally:
         if from_command_line and command in FAST_EXIT:
-            _fast_exit()
+            fast_exit()

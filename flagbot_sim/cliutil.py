@@ -207,3 +207,17 @@ def broken_pipe_exit() -> int:
     except (OSError, ValueError):
         pass
     return 1
+
+
+def fast_exit() -> None:
+    """Make the interpreter's shutdown cheap: move every object into the permanent generation (``gc.freeze``), so
+    the collections at finalization do not walk the ~10^6 objects numba, scipy and the model leave behind. That
+    walk took 0.4-0.5 s, a third of a warm ``flagbot run``, and most of sim_node's exit after SIGINT (0.35-0.5 s
+    of CPU, 0.5-0.9 s of wall time on a shared host); objects still die by reference counting (the ROS context
+    and its DDS participant too: the node leaves the graph as before). Call it only once everything written has
+    been closed: it flushes stdout and stderr."""
+    import gc
+    import sys
+    sys.stdout.flush()
+    sys.stderr.flush()
+    gc.freeze()

@@ -5,9 +5,16 @@ the run should have reached at the requested real-time factor (``rtf``; 0 = as f
 it for at most a budget of wall time (the rest of the tick serves commands and services), and keeps score:
 
 * the achieved real-time factor over the last ``window`` seconds of wall time;
-* whether the run falls behind (more than two steps, or two ticks' worth of simulated time);
+* whether the run falls behind: the achieved factor is below (1 - BEHIND_TOL) of the requested one over at least
+  half a window, or this tick ended more than two steps (or two ticks' worth of simulated time) short of its
+  target;
 * catch-up debt: more than a second of wall time behind, the schedule is re-anchored at the present instead of
-  racing to make up time that a command sent now would not care about.
+  racing to make up time that a command sent now would not care about; the simulated time so given up is summed
+  in ``given_up``.
+
+Judged on the tick alone, a run whose every step outlasts a second (Newton cut to tiny sub-steps) looked on time
+at every other tick: the re-anchoring set the target back to the present, so the next tick started with no lag.
+The achieved rate over the window does not forget.
 
 It works with fixed steps (``dt``: a step is taken while at least half of it fits before the target) and with
 error-controlled ones (``dt`` None: steps of the size the simulation picks, while the target is ahead); either
@@ -20,6 +27,10 @@ from collections import deque
 from typing import Callable
 
 
+#: behind when the achieved real-time factor is below (1 - BEHIND_TOL) of the requested one
+BEHIND_TOL = 0.1
+
+
 class Pacer:
     def __init__(self, rtf: float, sim_time: float, clock: Callable[[], float] = time.monotonic,
                  window: float = 2.0):
@@ -27,6 +38,8 @@ class Pacer:
         self.window = float(window)
         self.rtf = float(rtf)
         self.behind = False
+        self.lag = 0.0                  # s of simulated time the last tick ended short of its target
+        self.given_up = 0.0             # s of simulated time given up by re-anchoring, in total
         self._samples: deque[tuple[float, float]] = deque()      # (wall, simulated time), last window
         self.anchor(sim_time)
 
@@ -38,6 +51,7 @@ class Pacer:
     def set_rtf(self, rtf: float, sim_time: float) -> None:
         self.rtf = float(rtf)
         self.anchor(sim_time)
+        self.restart_window()           # the rate achieved at the old factor says nothing about the new one
 
     def target(self, wall: float) -> float:
         """Simulated time the run should have reached at wall time ``wall``."""
@@ -58,11 +72,15 @@ class Pacer:
                     ok = False
                     break
             lag = target - sim_time()
-            self.behind = lag > max(2.0 * (dt or 0.0), self.rtf * 2.0 * tick_period)
+            self.lag = max(0.0, lag)
+            short = lag > max(2.0 * (dt or 0.0), self.rtf * 2.0 * tick_period)
             if lag > self.rtf * 1.0:       # more than a second of wall time behind: stop accumulating debt
-                self.anchor(sim_time())
+                now = self.clock()
+                self.given_up += self.target(now) - sim_time()      # the whole debt, this tick's stepping too
+                self.anchor(sim_time(), now)
         else:
-            self.behind = False
+            short = False
+            self.lag = 0.0
             while True:
                 if not step():
                     ok = False
@@ -73,7 +91,14 @@ class Pacer:
         self._samples.append((now, (log_time or sim_time)()))
         while self._samples[0][0] <= now - self.window:      # in wall-time order: the old ones are first
             self._samples.popleft()
+        self.behind = self.rtf > 0 and (short or self._slow())
         return ok
+
+    def _slow(self) -> bool:
+        """The achieved factor, over at least half a window, is below (1 - BEHIND_TOL) of the requested one."""
+        rate = self.achieved()
+        return (rate is not None and self._samples[-1][0] - self._samples[0][0] >= 0.5 * self.window
+                and rate < (1.0 - BEHIND_TOL) * self.rtf)
 
     @staticmethod
     def _more(t: float, target: float, dt: float | None) -> bool:
@@ -87,5 +112,8 @@ class Pacer:
         return (s1 - s0) / (w1 - w0)
 
     def restart_window(self) -> None:
-        """Forget the achieved-rate samples (the simulated time jumped: a rebuilt or reset simulation)."""
+        """Forget the achieved-rate samples and the verdict on them (a pause, a rebuilt or reset simulation, a new
+        rate: what was achieved before says nothing about what comes next)."""
         self._samples.clear()
+        self.behind = False
+        self.lag = 0.0

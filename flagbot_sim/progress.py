@@ -158,6 +158,17 @@ class ProgressBar:
             self.stream.write(self.text(now) + "\n")
         self.stream.flush()
 
+    def note(self, line: str) -> None:
+        """Write ``line`` (a warning) on a line of its own; on a terminal over the bar, which is redrawn below it
+        at the next update."""
+        if self.tty and self.enabled and self._drawn_width:
+            self.stream.write("\r" + line.ljust(self._drawn_width) + "\n")
+            self._drawn_width = 0
+            self._last_draw = -math.inf
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
     def close(self) -> None:
         if not self.enabled:
             return

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from .physics.effects import EFFECT_TYPES
+from .physics.network import NEWTON_ROUNDOFFS, build_network
 
 RPM = 2.0 * math.pi / 60.0  # rad/s per rpm
 
@@ -89,11 +90,12 @@ def _names(items, limit: int = 5) -> str:
 
 def spec(unit: str = "", *, gt: float | None = None, ge: float | None = None, lt: float | None = None,
          le: float | None = None, doc: str = "", choices: tuple | None = None, items: str | None = None,
-         length: int | None = None, max_len: int | None = None, one_line: bool = False) -> dict:
+         length: int | None = None, max_len: int | None = None, one_line: bool = False, why: str = "") -> dict:
     """Field metadata: unit, bounds, choices; for lists the type of their ``items`` ('str' or 'number') and an
-    exact ``length``; for strings (and lists) a ``max_len``; ``one_line`` strings hold no line breaks or tabs."""
+    exact ``length``; for strings (and lists) a ``max_len``; ``one_line`` strings hold no line breaks or tabs;
+    ``why`` the reason for the bounds, told with an out-of-range refusal."""
     return {"unit": unit, "gt": gt, "ge": ge, "lt": lt, "le": le, "doc": doc, "choices": choices, "items": items,
-            "length": length, "max_len": max_len, "one_line": one_line}
+            "length": length, "max_len": max_len, "one_line": one_line, "why": why}
 
 
 def format_bounds(meta: dict) -> str:
@@ -205,12 +207,23 @@ class PlateSection:
                           ge=MIN_LENGTH, le=MAX_LENGTH)
 
 
+#: fewest Newton iterations per attempt accepted. On the built-in scenes and presets (2 s from rest, with a command
+#: reversal) a step takes 2-3 iterations from its predictor (the median), up to ~10 after a reversal. Measured dt
+#: reductions (design 1, 0.2 s = 20 steps): cap 1: 2150 (107 s of wall time on a loaded host), 2: 83, 3: 19; over
+#: 150 steps a cap of 3 took 55 and failed a step of the 'accurate' preset, 4 took 7, 5 took 4, 25 none
+MIN_NEWTON_ITERATIONS = 4
+
+
 @dataclass(frozen=True)
 class NumericsSection:
     rigid_factor: float = _f(1.0e3, "", "stiffness of head/plate relative to the flagellum", ge=1.0, le=1.0e8)
-    force_tol: float = _f(1.0e-7, "", "Newton tolerance on the force residual, relative to EI/L^2",
-                          gt=0.0, lt=1.0)
-    max_iterations: int = _f(25, "", "Newton iterations per attempt", ge=1, le=500)
+    force_tol: float = _f(1.0e-7, "", "Newton tolerance on the force residual, relative to EI/L^2 (never below "
+                                      "the robot's round-off floor; a value under both the default and that floor "
+                                      "is refused)", gt=0.0, lt=1.0)
+    max_iterations: int = _f(25, "", "Newton iterations per attempt", ge=MIN_NEWTON_ITERATIONS, le=500,
+                             why="a step's Newton solve takes 2-3 from its predictor, up to ~10 after a command "
+                                 f"reversal: with fewer than {MIN_NEWTON_ITERATIONS} most steps are cut into "
+                                 "sub-steps and the run crawls (1: 2150 dt reductions in 0.2 s of design 1)")
     min_dt: float = _f(1.0e-6, "s", "smallest time step before a step is declared failed", ge=1.0e-12)
     linear_solver: str = _f("auto", "", "Newton's linear solver: 'arrow' (banded flagella + Schur complement of "
                                         "the core), 'splu' (SuperLU), 'auto' (arrow when the network allows)",
@@ -274,6 +287,11 @@ class Scene:
     @property
     def EI(self) -> float:
         return math.pi / 4.0 * self.flagellum.youngs_modulus * self.flagellum.radius ** 4
+
+    @property
+    def force_scale(self) -> float:
+        """EI / L^2 (N): the flagellum's bending force, the unit of numerics.force_tol."""
+        return self.EI / self.flagellum.length ** 2
 
     @property
     def eta_t(self) -> float:
@@ -440,7 +458,8 @@ def _check_bounds(key: str, meta: dict, value: Any) -> None:
     unit = f" {meta['unit']}" if meta["unit"] else ""
     allowed = " and ".join(f"{word} {meta[bound]:g}{unit}" for bound, _, word in _BOUNDS
                            if meta.get(bound) is not None)
-    raise SceneError(f"{key} = {short(value)}{unit} is out of range: must be {allowed}")
+    why = f": {meta['why']}" if meta.get("why") else ""
+    raise SceneError(f"{key} = {short(value)}{unit} is out of range: must be {allowed}{why}")
 
 
 def _check_value(section: str, f: dataclasses.Field, value: Any) -> Any:
@@ -553,6 +572,7 @@ def _check_consistency(sc: Scene) -> None:
     _check_proportions(sc)
     if sc.numerics.min_dt >= sc.time.dt:
         raise SceneError(f"numerics.min_dt = {sc.numerics.min_dt} s must be smaller than time.dt = {sc.time.dt} s")
+    _check_force_tol(sc)
     if sc.observe.steady_window < sc.time.dt:
         raise SceneError(f"observe.steady_window = {sc.observe.steady_window} s must be at least one time step "
                          f"(time.dt = {sc.time.dt} s)")
@@ -565,6 +585,35 @@ def _check_consistency(sc: Scene) -> None:
             raise SceneError(f"robot.n_flagella = {sc.robot.n_flagella}: the 'clamp' scene drives exactly one "
                              "flagellum; set robot.n_flagella = 1")
         # (a fast clamp needs no refusal: every step is split so that it turns at most time.max_turn)
+
+
+def _check_force_tol(sc: Scene) -> None:
+    """Refuse a Newton tolerance the robot cannot be solved to: below its round-off floor (NEWTON_ROUNDOFFS times
+    the round-off of its stiffest spring, where the solver stops whatever is asked) and tighter than the default.
+    The default itself is always accepted (on a robot with stiff or thin parts it means the floor): recordings
+    and scene files written out carry it, and they must stay readable."""
+    tol = sc.numerics.force_tol
+    if tol >= NumericsSection.force_tol:
+        return                          # the check builds the network: only for the values it can refuse
+    net = build_network(sc)
+    roundoff, edge = net.residual_roundoff()
+    floor = NEWTON_ROUNDOFFS * roundoff / sc.force_scale
+    if tol >= floor:
+        return
+    width = f"{1e3 * net.edge_rest_length[edge]:.3g} mm"
+    spring = (f"the rigid parts, numerics.rigid_factor = {sc.numerics.rigid_factor:g}, over a {width} edge"
+              if not net.edge_elastic[edge] else f"the flagellum over its {width} edges (flagellum.edge_length)")
+    default = NumericsSection.force_tol
+    raise SceneError(f"numerics.force_tol = {tol:g} cannot be met: this robot's residual is not resolved below "
+                     f"{floor:.3g} of EI/L^2 ({NEWTON_ROUNDOFFS:g} round-offs of its stiffest spring: {spring}), "
+                     f"where Newton stops; use >= {_round_up(floor)} or the default {default:g}"
+                     + (" (which means the floor here)" if floor > default else ""))
+
+
+def _round_up(x: float) -> str:
+    """``x`` > 0 rounded up to two significant digits, as text (a bound to quote that is not below ``x``)."""
+    step = 10.0 ** (math.floor(math.log10(x)) - 1)
+    return f"{math.ceil(x / step * (1 - 1e-12)) * step:.2g}"
 
 
 def _check_proportions(sc: Scene) -> None:

@@ -88,6 +88,7 @@ def test_a_sweeps_json_files_carry_the_version(tmp_path, capsys):
 #: JSON the package prints or writes that is not a command's result for its user, with the reason
 NOT_RESULTS = {
     "flagbot_sim/bench/startup.py": "the timed child process's report to its parent",
+    "flagbot_sim/bench/flood.py": "the flooding child process's report to its parent",
     "flagbot_sim/bench/accuracy.py": "references.json, the reference cache keyed by case (re-read as such)",
 }
 

@@ -80,3 +80,37 @@ def test_anchor_restarts_the_schedule_and_rate_changes_take_effect_at_once():
     p.set_rtf(3.0, w.t)                      # from now on, 3x: no catching up on the past at the new rate
     w.run(p, 50)
     assert w.t - t_before == pytest.approx(3.0 * 1.0, abs=0.1)
+
+
+def test_steps_slower_than_a_second_are_behind_at_every_tick_and_the_time_given_up_is_counted():
+    """The issue's crawl: each 10 ms step took 1.25 s of wall time. Judged on the tick alone it looked on time at
+    every other tick (the re-anchoring set the target back to the present); the achieved rate does not forget."""
+    w = World(dt=0.01, cost=1.25)
+    p = Pacer(1.0, 0.0, clock=w.clock)
+    verdicts = []
+    for _ in range(12):
+        p.advance(lambda: w.t, w.step, 0.016, w.dt, 0.02)
+        verdicts.append(p.behind)
+        w.wall += 0.02                           # the next tick (already due after a slow step)
+    assert all(verdicts[2:]), verdicts
+    assert p.achieved() == pytest.approx(0.01 / 1.25, rel=0.6)
+    # the schedule's whole debt is accounted for: given up at the re-anchorings, or still owed since the last one
+    owed = p.target(w.wall) - w.t
+    assert p.given_up + owed == pytest.approx(w.wall - w.t, abs=1e-9) and p.given_up > 0.8 * (w.wall - w.t)
+
+
+def test_a_run_slightly_too_slow_is_behind_although_no_tick_misses_by_two_steps():
+    """85% of the requested rate: each tick ends short by less than two steps, but it never catches up."""
+    w = World(dt=0.001, cost=0.0)
+    p = Pacer(1.0, 0.0, clock=w.clock)
+    late = []
+    for k in range(300):                         # 6 s of 20 ms ticks, 17 of the 20 steps each could need
+        for _ in range(17):
+            w.step()
+        p.advance(lambda: w.t, lambda: True, 0.0, w.dt, 0.02)     # no budget: it steps no further itself
+        w.wall += 0.02
+        late.append(p.behind)
+    assert p.achieved() == pytest.approx(0.85, rel=0.02)
+    assert all(late[100:])
+    p.restart_window()                           # a pause / reset / new rate: the verdict starts afresh
+    assert not p.behind and p.achieved() is None

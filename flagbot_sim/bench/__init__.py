@@ -1,6 +1,7 @@
 """Benchmarks: `flagbot bench accuracy` (accuracy vs time study), `flagbot bench speed` (throughput) and
-`flagbot bench memory` (resident memory of hour-long runs) and `flagbot bench startup` (start-up time of
-`flagbot run`, cold and warm, as whole processes).
+`flagbot bench memory` (resident memory of hour-long runs), `flagbot bench startup` (start-up time of
+`flagbot run`, cold and warm, as whole processes) and `flagbot bench flood` (sim_node's pace under a flood of
+valid commands from another process).
 
 Registration imports nothing heavy: the simulator is loaded only when a benchmark actually runs.
 """
@@ -41,6 +42,18 @@ def startup_arguments(ap) -> None:
     ap.add_argument("--breakdown", action="store_true", help="also time the phases of a warm start in one process")
 
 
+def flood_arguments(ap) -> None:
+    ap.add_argument("--rates", default="0,5000,10000", help="comma-separated cmd_omega flood rates, msg/s (0 = no "
+                                                            "flood; always measured)")
+    ap.add_argument("--seconds", type=float, default=8.0, help="wall seconds measured per phase")
+    ap.add_argument("--repeat", type=int, default=2, help="rounds of the interleaved phases")
+    ap.add_argument("--scene", default="design1", help="scene sim_node runs (default design1)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene value (sim_node's scene_overrides), e.g. --set scene.preset=accurate")
+    ap.add_argument("--publish-rate", type=float, default=50.0, help="sim_node's publish_rate (Hz)")
+    ap.add_argument("--no-realtime", action="store_true", help="skip the real_time_factor 1 /clock check")
+
+
 def _run(module: str):
     def run(args):
         import importlib
@@ -65,3 +78,7 @@ def register(sub) -> None:
                                         "and warm, min / median / max")
     startup_arguments(t)
     t.set_defaults(func=_run("startup"))
+    f = bsub.add_parser("flood", help="sim_node's simulated seconds per wall second and /clock rate under a flood of "
+                                      "valid cmd_omega from another process")
+    flood_arguments(f)
+    f.set_defaults(func=_run("flood"))

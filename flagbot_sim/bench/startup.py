@@ -43,8 +43,8 @@ again = flagbot_sim.physics.Simulation(scene);     mark("a second Simulation() (
 again.run(0.1);                                    mark("10 more steps (kernels in memory)")
 print(json.dumps({"age": age, "marks": marks}))
 if sys.argv[2] == "fast":
-    from flagbot_sim.cli import _fast_exit
-    _fast_exit()                                   # as flagbot run ends
+    from flagbot_sim.cliutil import fast_exit
+    fast_exit()                                    # as flagbot run ends
 print(time.monotonic(), file=sys.stderr)
 """
 

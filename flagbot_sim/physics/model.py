@@ -18,7 +18,7 @@ from .assembly import SparsePattern
 from .effects import EFFECT_TYPES, Driver, Effect, StepContext
 from .elastic import ElasticModel
 from .frames import EdgeFrames
-from .network import RodNetwork, build_network
+from .network import NEWTON_ROUNDOFFS, RodNetwork, build_network
 
 
 @dataclass
@@ -92,16 +92,16 @@ class RobotModel:
         # residual scaling: torques on twist DOFs are divided by a length to compare with forces
         fl = scene.flagellum
         self.length_scale = fl.length / max(1, round(fl.length / fl.edge_length))
-        self.force_scale = scene.EI / fl.length ** 2
+        self.force_scale = scene.force_scale
         self.scale = np.ones(self.ndof)
         self.scale[3 * self.net.n_nodes:] = 1.0 / self.length_scale
-        # A residual cannot be resolved below the round-off of the stiffest spring: a relative error of machine
-        # epsilon in an edge length times its stretching stiffness. Asking for less only burns iterations.
-        net = self.net
-        roundoff = 64.0 * np.finfo(float).eps * float(np.max(net.EA * np.abs(net.nodes).max()
-                                                            / net.edge_rest_length))
+        # A residual cannot be resolved below the round-off of the stiffest spring (RodNetwork.residual_roundoff).
+        # Asking for less only burns iterations: the scene refuses a force_tol below this floor unless it is at
+        # least the default (which then means "the default or the floor, whichever is coarser")
+        #: N: the smallest Newton tolerance this robot can be solved to
+        self.force_floor = NEWTON_ROUNDOFFS * self.net.residual_roundoff()[0]
         #: N: the residual norm (:meth:`residual_norm`) a Newton solve must reach, time-stepped or steady
-        self.force_tol = max(scene.numerics.force_tol * self.force_scale, roundoff)
+        self.force_tol = max(scene.numerics.force_tol * self.force_scale, self.force_floor)
 
     def residual_norm(self, r: np.ndarray) -> float:
         """The largest scaled residual entry (N; torques on twist DOFs over the edge length)."""

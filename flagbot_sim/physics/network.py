@@ -30,6 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: the Newton tolerance is never below this many round-offs of the residual (:meth:`RodNetwork.residual_roundoff`):
+#: a converged residual sums many terms of that size, and asking for less only burns iterations
+NEWTON_ROUNDOFFS = 64.0
 
 
 @dataclass
@@ -62,6 +65,15 @@ class RodNetwork:
     @property
     def n_nodes(self) -> int:
         return len(self.nodes)
+
+    def residual_roundoff(self) -> tuple[float, int]:
+        """(N, edge): the round-off of the residual's largest term and the edge it comes from. A relative error of
+        machine epsilon in a node coordinate (at most the largest one, |x|max) changes an edge's strain by
+        eps |x|max / L_rest and its stretching force by EA times that: the stiffest spring's is the largest, and
+        no residual can be resolved below it."""
+        scale = self.EA * np.abs(self.nodes).max() / self.edge_rest_length
+        k = int(np.argmax(scale))
+        return float(np.finfo(float).eps * scale[k]), k
 
     @property
     def n_edges(self) -> int:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from typing import Callable
 
 import numpy as np
@@ -15,6 +16,10 @@ from .stepper import Stepper, StepStats
 
 #: with error control the steady-state rule's tolerance is at most this fraction of time.rtol
 STEADY_PER_RTOL = 0.1
+#: steps are "being cut repeatedly" when at most the last CUT_WINDOW steps took CUT_WINDOW dt reductions or more
+#: (one per step on average, or a single step cut that often): Newton keeps failing at the step size asked for,
+#: and the run crawls through sub-steps
+CUT_WINDOW = 20
 
 
 class Simulation:
@@ -46,6 +51,8 @@ class Simulation:
         self.newton_iterations = 0
         self.reductions = 0
         self.wall_seconds = 0.0
+        self._recent = deque(maxlen=CUT_WINDOW)     # (dt reductions, smallest sub-step) of the last steps
+        self._recent_cuts = 0                       # their dt reductions in total
 
     # ---------------------------------------------------------------- command
     @property
@@ -83,6 +90,10 @@ class Simulation:
         self.steps += 1
         self.newton_iterations += stats.newton_iterations
         self.reductions += stats.reductions
+        if len(self._recent) == CUT_WINDOW:
+            self._recent_cuts -= self._recent[0][0]
+        self._recent.append((stats.reductions, stats.dt_min))
+        self._recent_cuts += stats.reductions
         if self.steady_detector.due(new.t):
             self.steady_detector.update(new.t, *self._steady_sample())
         # the step's whole cost, its observation included (a caller's callback is the caller's)
@@ -136,6 +147,26 @@ class Simulation:
     @property
     def steady(self) -> bool:
         return self.steady_detector.steady
+
+    @property
+    def cutting(self) -> bool:
+        """Steps are being cut repeatedly: the last CUT_WINDOW steps (or fewer) took CUT_WINDOW dt reductions or
+        more."""
+        return self._recent_cuts >= CUT_WINDOW
+
+    @property
+    def recent_reductions(self) -> int:
+        """dt reductions of the last CUT_WINDOW steps."""
+        return self._recent_cuts
+
+    def cutting_report(self) -> str:
+        """What the cut steps look like, with the numbers (for a warning while :attr:`cutting`)."""
+        num = self.scene.numerics
+        return (f"steps are being cut repeatedly: {self._recent_cuts} dt reductions in the last "
+                f"{len(self._recent)} steps ({self.reductions} in {self.steps} steps so far), sub-steps down to "
+                f"{min(h for _, h in self._recent):.3g} s of time.dt = {self.dt:g} s: Newton does not converge "
+                f"within numerics.max_iterations = {num.max_iterations} at the step asked for (tolerance "
+                f"{self.model.force_tol:.3g} N), so the run is slow")
 
     # ---------------------------------------------------------------- observations
     def snapshot(self) -> Snapshot:

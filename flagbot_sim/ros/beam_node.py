@@ -176,12 +176,13 @@ class BeamNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
+    process_exit = argv is None             # the console script / python -m: the process ends with this
     argv = sys.argv if argv is None else argv
     if wants_help(argv):
         print(help_text("beam_node", __doc__.strip().splitlines()[0], PARAMS,
                         "topics: sub cmd_omega; pub beam/speed, beam/omega_h, beam/omega_t, /diagnostics"))
         return 0
-    return run_node(BeamNode, argv)
+    return run_node(BeamNode, argv, process_exit=process_exit)
 
 
 if __name__ == "__main__":

@@ -61,6 +61,7 @@ class ProfileNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
+    process_exit = argv is None             # the console script / python -m: the process ends with this
     argv = sys.argv if argv is None else argv
     try:
         own = user_args(argv)
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return run_node(lambda: ProfileNode(profile, args.rate, args.sim_time, args.exit_at_end, args.quiet, args.t0),
-                    argv)
+                    argv, process_exit=process_exit)
 
 
 if __name__ == "__main__":

@@ -20,10 +20,12 @@ import time
 from typing import Callable, Iterator
 
 import rclpy
+from rclpy.callback_groups import CallbackGroup
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from ..cliutil import fast_exit
 from .dds import configure_dds
 
 SLICE = 0.1     # s: longest wait before a stop request is noticed
@@ -69,6 +71,40 @@ class StopRequest:
         for sig, handler in self._saved.items():
             signal.signal(sig, handler)
         self._saved.clear()
+
+
+class Polled(CallbackGroup):
+    """A callback group the executor never runs: its subscriptions are left out of every wait set, and their
+    owner takes the messages itself (:func:`take_all`) when it wants them.
+
+    Why: for each message of a subscription it waits on, rclpy's executor rebuilds its wait set from every
+    entity of the node, wakes, takes, deserialises and calls back in Python, on the thread that also runs the
+    node's timers. For a topic where only the newest message matters (a motor command read once per step), a
+    flood of messages then costs the timer its time; taken in the timer from a depth-1 queue, the cost per
+    tick is one take, whatever the message rate.
+    """
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        pass
+
+
+def take_all(subscription, limit: int) -> list:
+    """The messages waiting in ``subscription``'s queue, oldest first, at most ``limit`` (a subscription in a
+    :class:`Polled` group; its QoS depth bounds how many can wait)."""
+    out = []
+    with subscription.handle:
+        for _ in range(limit):
+            taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+            if taken is None:
+                break
+            out.append(taken[0])
+    return out
 
 
 def release(executor: SingleThreadedExecutor | None, node) -> None:
@@ -133,13 +169,25 @@ def one_line(text: str, limit: int = 300) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
-def run_node(make_node: Callable[[], object], argv: list[str] | None = None) -> int:
+def run_node(make_node: Callable[[], object], argv: list[str] | None = None, *, process_exit: bool = False) -> int:
     """Create the node, spin it until SIGINT/SIGTERM or rclpy shutdown, then tear everything down in order.
 
     Exit code: 2 when the node cannot start (one line on stderr, no traceback), else what the node's ``close()``
     returns (an int; e.g. sim_node says 1 when a recording failed to write), else 0.
+
+    ``process_exit``: the process ends when this returns (a node's console script), so once everything is torn
+    down the interpreter's final garbage collection is skipped (:func:`flagbot_sim.cliutil.fast_exit`). Measured
+    on sim_node after SIGINT: the teardown in order takes ~15 ms (60 ms closing a recording), the collection walk
+    0.35-0.5 s of CPU; exit went from 0.5-1.2 s to 0.17-0.25 s on a loaded 2-core host.
     """
-    argv = sys.argv if argv is None else argv
+    try:
+        return _run_node(make_node, sys.argv if argv is None else argv)
+    finally:
+        if process_exit:
+            fast_exit()
+
+
+def _run_node(make_node: Callable[[], object], argv: list[str]) -> int:
     code = 0
     try:
         user_args(argv)

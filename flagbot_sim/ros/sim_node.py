@@ -40,7 +40,7 @@ from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
                      lifecycle_requested, node_scene, record_refusal, text_refusal)
-from .runtime import one_line, run_node, wants_help
+from .runtime import Polled, one_line, run_node, take_all, wants_help
 
 PARAMS = [
     ParamSpec("scene", "design1", "built-in scene name (design1, design2, ...) or path to a .toml scene file; "
@@ -171,6 +171,8 @@ class SimDevice:
             self.paused = bool(p["start_paused"])
             self.rejected = 0
             self.step_failures = 0
+            self._failures_reported = 0              # step_failures when the last diagnostics went out
+            self._last_failure = ""                  # the last step failure's reason
             self.last_error = ""
             self.withheld = 0
             self.pacer = Pacer(self.rtf, sim.time)
@@ -210,7 +212,10 @@ class SimDevice:
         self.pub_diag = pub(DiagnosticArray, names.DIAGNOSTICS)
         self.pub_description = pub(String, names.ROBOT_DESCRIPTION, latched)
         self.pub_resets = pub(DiagnosticArray, names.RESETS, latched)
-        self._entities += [self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos),
+        # commands are taken in the timer, never by the executor (see _take_commands)
+        self._cmd_sub = self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos,
+                                                 callback_group=Polled())
+        self._entities += [self._cmd_sub,
                            self.create_service(Trigger, names.RESET, self._on_reset),
                            self.create_service(SetBool, names.PAUSE, self._on_pause)]
 
@@ -258,6 +263,7 @@ class SimDevice:
     def _anchor(self) -> None:
         """Restart the real-time schedule at the present (after a reset, a pause, a rebuild)."""
         self.pacer.anchor(self.sim.time)
+        self.pacer.restart_window()
 
     def _make_timer(self):
         # the simulator owns /clock: a timer on the node clock would, with use_sim_time, wait for the /clock this
@@ -498,7 +504,17 @@ class SimDevice:
             self._say_sim_time()
 
     # ------------------------------------------------------------------ stepping
+    def _take_commands(self) -> None:
+        """Apply the commands that arrived since the last tick, in order: the newest wins.
+
+        At most the queue depth of them wait (older ones are dropped unseen under a faster stream), so a tick
+        costs a bounded number of takes whatever the message rate; a flood of commands handled by the executor
+        one callback at a time cost the stepping its time (see runtime.Polled)."""
+        for msg in take_all(self._cmd_sub, self._cmd_sub.qos_profile.depth):
+            self._on_cmd(msg)
+
     def _on_timer(self) -> None:
+        self._take_commands()
         wall_start = time.monotonic()
         if not self.paused:
             self._advance(wall_start)
@@ -520,7 +536,7 @@ class SimDevice:
             self.sim.step()
         except StepFailed as exc:
             self.step_failures += 1
-            self.last_error = str(exc)
+            self.last_error = self._last_failure = str(exc)
             self.get_logger().error(f"step failed, keeping the last good state: {exc}", throttle_duration_sec=5.0)
             return False
         self.last_error = ""
@@ -587,29 +603,55 @@ class SimDevice:
             self._description = text
             self.pub_description.publish(convert.string_msg(text))
 
+    def _problems(self, achieved: float) -> tuple[list[str], list[str]]:
+        """(errors, warnings) for the diagnostics, each a sentence with its numbers.
+
+        ERROR: a step failed since the last report (even if a later one succeeded), the state is withheld, or the
+        recording failed. WARN: simulated time falls behind the requested real-time factor, or steps are being
+        cut repeatedly (Newton failing at the step size asked for: the run crawls)."""
+        errors, warnings = [], []
+        new_failures = self.step_failures - self._failures_reported
+        self._failures_reported = self.step_failures
+        if new_failures:
+            errors.append(f"{new_failures} step failure{'s' if new_failures > 1 else ''} since the last report "
+                          f"({self.step_failures} in total), keeping the last good state: {self._last_failure}")
+        elif self.last_error:
+            errors.append(self.last_error)
+        rec_err = self._check_recording()          # a failed recording stays an ERROR until it is stopped
+        if rec_err:
+            errors.append(f"recording to {self.recorder.path} failed: {rec_err}; nothing more is written (set "
+                          f"record to '' or to a new file)")
+        p = self.pacer
+        if p.behind and not self.paused:
+            rate = (f"real-time factor {achieved:.3g} achieved over the last {p.window:g} s, "
+                    if math.isfinite(achieved) else "real-time factor ")
+            text = (f"cannot keep up: {rate}{self.rtf:g} requested; {p.lag:.3g} s of simulated time behind "
+                    "schedule")
+            if p.given_up > 0:
+                text += f", {p.given_up:.3g} s given up since the start to stay live"
+            warnings.append(text)
+        if self.sim.cutting:
+            warnings.append(self.sim.cutting_report())
+        return errors, warnings
+
     def _publish_diagnostics(self) -> None:
         sim, st = self.sim, self.sim.last_stats
         achieved = self.pacer.achieved()
         achieved = float("nan") if achieved is None else achieved
-        level, message = "OK", "running"
-        if self.paused:
-            message = "paused"
-        if self.pacer.behind:
-            level, message = "WARN", (f"cannot keep up: real-time factor {achieved:.2f} achieved, "
-                                      f"{self.rtf:g} requested")
-        # a failed recording stays an ERROR until the recording is stopped or restarted
-        rec_err = self._check_recording()
-        if self.last_error or rec_err:
-            parts = [self.last_error] if self.last_error else []
-            if rec_err:
-                parts.append(f"recording to {self.recorder.path} failed: {rec_err}; nothing more is written (set "
-                             f"record to '' or to a new file)")
-            level, message = "ERROR", "; ".join(parts)
+        errors, warnings = self._problems(achieved)
+        level, message = "OK", "paused" if self.paused else "running"
+        if errors:
+            level, message = "ERROR", "; ".join(errors + warnings)
+        elif warnings:
+            level, message = "WARN", "; ".join(warnings)
         values = {
             "sim_time_s": f"{self.sim_time:.4f}", "omega_T_rad_s": f"{sim.omega_T:.6g}",
             "newton_iterations_last_step": st.newton_iterations, "residual_N": f"{st.residual:.3e}",
+            "newton_tolerance_N": f"{sim.model.force_tol:.3e}",
             "dt_s": sim.dt, "dt_min_last_step_s": f"{st.dt_min:.3g}", "dt_reductions_total": sim.reductions,
+            "dt_reductions_recent": sim.recent_reductions,
             "real_time_factor_achieved": f"{achieved:.3f}", "real_time_factor_requested": self.rtf,
+            "behind_schedule_s": f"{self.pacer.lag:.3g}", "sim_time_given_up_s": f"{self.pacer.given_up:.3g}",
             "rejected_commands": self.rejected, "step_failures": self.step_failures,
             "withheld_non_finite": self.withheld, "steps": sim.steps, "scene": sim.scene.scene.name,
             "n_flagella": sim.scene.robot.n_flagella,
@@ -679,6 +721,7 @@ class ManagedSimNode(SimDevice, LifecycleNode):
 
 
 def main(argv: list[str] | None = None) -> int:
+    process_exit = argv is None             # the console script / python -m: the process ends with this
     argv = sys.argv if argv is None else argv
     if wants_help(argv):
         print(help_text("sim_node", __doc__.strip().splitlines()[0], PARAMS,
@@ -690,7 +733,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return run_node(ManagedSimNode if managed else SimNode, argv)
+    return run_node(ManagedSimNode if managed else SimNode, argv, process_exit=process_exit)
 
 
 if __name__ == "__main__":
