@@ -184,8 +184,8 @@ def rft_kernel():
     by the scene validator for the registry alone, which must not pull in numba."""
     global _RFT
     if _RFT is None:
-        from numba import njit
-        _RFT = njit(cache=True)(_rft_py)
+        from .jit import kernel
+        _RFT = kernel(_rft_py)
     return _RFT
 
 

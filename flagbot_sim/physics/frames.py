@@ -20,16 +20,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from .jit import kernel, stage
 
 
 # ------------------------------------------------------------------------------------------- scalar formulas
-@njit(cache=True)
+@stage
 def cross3(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True)
+@stage
 def transport3(c0, c1, c2, t0, t1, t2, u0, u1, u2):
     """Rotate u by the minimal rotation taking unit vector c to unit vector t.
 
@@ -43,14 +44,14 @@ def transport3(c0, c1, c2, t0, t1, t2, u0, u1, u2):
     return c * u0 + w0 + b0 * bu, c * u1 + w1 + b1 * bu, c * u2 + w2 + b2 * bu
 
 
-@njit(cache=True)
+@kernel
 def angle3(u0, u1, u2, v0, v1, v2, a0, a1, a2):
     """Signed angle from u to v about the axis a (right-handed), in (-pi, pi]."""
     x0, x1, x2 = cross3(u0, u1, u2, v0, v1, v2)
     return math.atan2(x0 * a0 + x1 * a1 + x2 * a2, u0 * v0 + u1 * v1 + u2 * v2)
 
 
-@njit(cache=True)
+@kernel
 def material3(d10, d11, d12, d20, d21, d22, theta):
     """Material directors (m1, m2) of a reference frame (d1, d2) turned by the twist angle theta."""
     c, s = math.cos(theta), math.sin(theta)
@@ -58,14 +59,14 @@ def material3(d10, d11, d12, d20, d21, d22, theta):
             -s * d10 + c * d20, -s * d11 + c * d21, -s * d12 + c * d22)
 
 
-@njit(cache=True)
+@stage
 def unwrap(angle, reference):
     """``angle`` plus the multiple of 2 pi that brings it closest to ``reference``."""
     return angle + 2.0 * math.pi * np.round((reference - angle) / (2.0 * math.pi))
 
 
 # ------------------------------------------------------------------------------------------- row-wise forms
-@njit(cache=True)
+@kernel
 def parallel_transport(u, t1, t2):
     """Row-wise :func:`transport3`: u (n, 3) carried from unit tangents t1 to t2."""
     out = np.empty_like(u)
@@ -75,7 +76,7 @@ def parallel_transport(u, t1, t2):
     return out
 
 
-@njit(cache=True)
+@kernel
 def signed_angle(u, v, axis):
     """Row-wise :func:`angle3`."""
     out = np.empty(u.shape[0])
@@ -84,7 +85,7 @@ def signed_angle(u, v, axis):
     return out
 
 
-@njit(cache=True)
+@kernel
 def unit_rows(v):
     """(v / |v|, |v|) row-wise."""
     out = np.empty_like(v)
@@ -96,7 +97,7 @@ def unit_rows(v):
     return out, n
 
 
-@njit(cache=True)
+@kernel
 def twist_for_director(d1c, tc, t_new, m_target, theta_old):
     """Twist angles that make each edge's material director m1 equal ``m_target``, given reference frames
     carried from (d1c, tc) to the unit tangents t_new by time-parallel transport; each continuous with
@@ -111,7 +112,7 @@ def twist_for_director(d1c, tc, t_new, m_target, theta_old):
 
 
 # ------------------------------------------------------------------------------------------- trial frames
-@njit(cache=True)
+@kernel
 def _trial_frames(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt):
     for k in range(edges.shape[0]):
         a, b = edges[k, 0], edges[k, 1]
