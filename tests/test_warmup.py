@@ -137,3 +137,16 @@ print(json.dumps([warmup.groups_for(scene), loaded, after]))
                 assert loaded[n] == 1, n
             elif n not in {k for h in groups for k in warmup.GROUPS[h].kernels}:
                 assert loaded[n] == 0, f"{n} of group {g} loaded for a scene that does not use it"
+
+
+def test_the_time_left_follows_the_rate_each_process_has_shown():
+    c = warmup._Compile(["bend_twist", "arrow", "frames"], lambda m: None, 0.0)
+    c.share = [["bend_twist"], ["arrow", "frames"]]
+    assert c.time_left(1.0) is None                        # nothing finished: no rate to go by
+    c.done = ["arrow"]                                      # the helper did 1.6 weight units in 2 s
+    w = {g: warmup.GROUPS[g].weight for g in c.groups}
+    rate = w["arrow"] / 2.0
+    # this process has shown no rate yet: both at the helper's; the later one decides
+    assert c.time_left(2.0) == pytest.approx(max(w["bend_twist"], w["frames"]) / rate)
+    c.done = ["arrow", "bend_twist"]
+    assert c.time_left(4.0) == pytest.approx(w["frames"] / (w["arrow"] / 4.0))
