@@ -1,13 +1,20 @@
-"""Start-up time of ``flagbot run``, measured as whole processes the way a user starts them.
+"""Start-up time of ``flagbot run``, measured as whole processes the way a user starts them, as two ratios.
 
-    flagbot bench startup                 # cold and warm, min / median / max of 3
+    flagbot bench startup                 # the two ratios, 5 rounds
     flagbot bench startup --breakdown     # plus where a warm start spends its time
 
-*Cold*: ``flagbot run SCENE --duration 1`` with ``NUMBA_CACHE_DIR`` pointing to a fresh, empty directory (every
-kernel compiles, as on the first run after an install). *Warm*: ``flagbot run SCENE --duration 0.1`` after one
-untimed run has filled the kernel cache. Both include the interpreter's start and the ROS wheels' re-exec of it
-(their ``.pth`` file restarts Python once with LD_LIBRARY_PATH set). The machine is shared: the load average
-before and after is printed with the figures, and only figures taken on a quiet machine are worth quoting.
+Each round times, one after the other, the three commands
+
+* *import*: ``python -c "import numpy, scipy.sparse, numba"`` (what any numba program pays before its own code),
+* *warm*: ``flagbot run SCENE --duration 0.1`` with the kernel cache filled (by one untimed run beforehand),
+* *cold*: ``flagbot run SCENE --duration 1`` with ``NUMBA_CACHE_DIR`` a fresh, empty directory (every kernel the
+  scene uses compiles, as on the first run after an install),
+
+and takes the ratios cold / warm and warm / import within the round: the machine's speed may drift between rounds
+(these machines are shared), a ratio of runs taken seconds apart holds. Medians and min - max over the rounds are
+printed with the load average before and after; the targets are cold / warm <= 5 and warm / import <= 2. All three
+include the interpreter's start and, for flagbot, the ROS wheels' re-exec of it (their ``.pth`` file restarts
+Python once with LD_LIBRARY_PATH set).
 """
 from __future__ import annotations
 
@@ -79,15 +86,21 @@ def time_process(cmd: list[str], env: dict) -> float:
     return wall
 
 
-def stats(values: list[float]) -> str:
-    return f"{min(values):6.2f} / {statistics.median(values):6.2f} / {max(values):6.2f}"
-
-
 def load() -> str:
     try:
         return "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
     except OSError:
         return "load average unknown"
+
+
+#: the yardstick: what any program using numpy, scipy's sparse matrices and numba pays to start
+IMPORT_LINE = "import numpy, scipy.sparse, numba"
+#: the targets of the two ratios (issue 19)
+TARGETS = {"cold / warm": 5.0, "warm / import": 2.0}
+
+
+def ratio_stats(values: list[float]) -> str:
+    return f"{statistics.median(values):5.2f}  ({min(values):.2f} - {max(values):.2f})"
 
 
 def run(args) -> int:
@@ -97,29 +110,44 @@ def run(args) -> int:
     load_scene(args.scene)                          # a bad scene is refused before anything is timed
     scene = str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene   # children: NEUTRAL_CWD
     flagbot = flagbot_command()
-    run_cmd = [*flagbot, "run", scene, "--quiet"]
-    print(f"start-up of `{' '.join([Path(flagbot[0]).name, *flagbot[1:], 'run', args.scene])}` as whole processes, "
-          f"wall seconds, min / median / max of {args.repeat}; {os.cpu_count()} cores, {load()}")
-    rows = []
-    py = [sys.executable, "-c", "pass"]
-    rows.append(("python -c pass", [time_process(py, _env()) for _ in range(args.repeat)]))
-    rows.append(("python -c pass, without the ROS wheels' re-exec",
-                 [time_process(py, _env(_ROS_WHEELS_BOOTSTRAP_COMPLETE="1")) for _ in range(args.repeat)]))
-    time_process([*run_cmd, "--duration", "0.1"], _env())           # fill the kernel cache (untimed)
-    warm = [time_process([*run_cmd, "--duration", "0.1"], _env()) for _ in range(args.repeat)]
-    rows.append(("warm: --duration 0.1 (kernel cache filled)", warm))
-    if not args.no_cold:
-        cold = []
+    run_cmd = [*flagbot, "run", scene]
+    warm_cmd = [*run_cmd, "--duration", "0.1"]
+    cold_cmd = [*run_cmd, "--duration", "1"]
+    import_cmd = [sys.executable, "-c", IMPORT_LINE]
+    name = " ".join([Path(flagbot[0]).name, *flagbot[1:], "run", args.scene])
+    kinds = "import, warm" + ("" if args.no_cold else ", cold")
+    print(f"start-up of `{name}` as whole processes, {args.repeat} rounds of {kinds} (in turn); "
+          f"{os.cpu_count()} cores, {load()}")
+    warm_cache = tempfile.mkdtemp(prefix="flagbot_warm_cache_")
+    times = {"import": [], "warm": [], "cold": []}
+    try:
+        time_process(warm_cmd, _env(NUMBA_CACHE_DIR=warm_cache))         # fill the kernel cache (untimed)
         for _ in range(args.repeat):
-            cache = tempfile.mkdtemp(prefix="flagbot_cold_cache_")
-            try:
-                cold.append(time_process([*run_cmd, "--duration", "1"], _env(NUMBA_CACHE_DIR=cache)))
-            finally:
-                shutil.rmtree(cache, ignore_errors=True)
-        rows.append(("cold: --duration 1 (empty kernel cache)", cold))
-    width = max(len(r[0]) for r in rows)
-    for label, values in rows:
-        print(f"  {label:{width}s}  {stats(values)}")
+            times["import"].append(time_process(import_cmd, _env()))
+            times["warm"].append(time_process(warm_cmd, _env(NUMBA_CACHE_DIR=warm_cache)))
+            if not args.no_cold:
+                cache = tempfile.mkdtemp(prefix="flagbot_cold_cache_")
+                try:
+                    times["cold"].append(time_process(cold_cmd, _env(NUMBA_CACHE_DIR=cache)))
+                finally:
+                    shutil.rmtree(cache, ignore_errors=True)
+    finally:
+        shutil.rmtree(warm_cache, ignore_errors=True)
+    labels = {"import": f'import: python -c "{IMPORT_LINE}"',
+              "warm": "warm: --duration 0.1, kernel cache filled",
+              "cold": "cold: --duration 1, empty kernel cache"}
+    width = max(len(v) for v in labels.values())
+    print(f"  {'wall seconds':{width}s}  median  (min - max)")
+    for k, values in times.items():
+        if values:
+            print(f"  {labels[k]:{width}s}  {ratio_stats(values)}")
+    ratios = {"warm / import": [w / i for w, i in zip(times["warm"], times["import"])]}
+    if times["cold"]:
+        ratios = {"cold / warm": [c / w for c, w in zip(times["cold"], times["warm"])], **ratios}
+    print("  ratios, round by round")
+    for k, values in ratios.items():
+        verdict = "meets" if statistics.median(values) <= TARGETS[k] else "misses"
+        print(f"  {k:{width}s}  {ratio_stats(values)}   target <= {TARGETS[k]:g}: {verdict} it")
     print(f"  ({load()} after)")
     if args.breakdown:
         print_breakdown(scene)

@@ -376,13 +376,16 @@ def _fewer_collections():
     collector's sweeps and a larger first-generation threshold, it spends ~0.2 s collecting instead of ~0.55 s
     per group set (docs/startup.md). The thresholds and the objects are handed back afterwards."""
     old = gc.get_threshold()
-    gc.freeze()
+    freeze = gc.get_freeze_count() == 0          # (objects someone else froze stay frozen)
+    if freeze:
+        gc.freeze()
     gc.set_threshold(50_000, 20, 20)
     try:
         yield
     finally:
         gc.set_threshold(*old)
-        gc.unfreeze()
+        if freeze:
+            gc.unfreeze()
 
 
 def _numba_set_up() -> None:
