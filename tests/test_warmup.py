@@ -85,8 +85,8 @@ def test_a_scene_compiles_none_of_the_kernels_of_effects_it_does_not_use(tmp_pat
     assert json.loads(p.stdout)["steady"] is True
     cached = _cached_kernels(tmp_path)
     assert {"elastic._bend_twist", "effects._rft_py", "frames.twist_for_director"} <= cached
-    assert not cached & {"elastic.tangent_torque", "stepper._predict_cylindrical", "frames.material3",
-                         "linsolve._arrow_factor", "linsolve._arrow_solve"}, cached
+    assert not cached & {"elastic.tangent_torque", "stepper._predict_cylindrical", "linsolve._arrow_factor",
+                         "linsolve._arrow_solve"}, cached
     assert "compiling kernels (first run only" in p.stderr and "(5/5)" in p.stderr
 
 

@@ -67,11 +67,11 @@ def _tiny_network():
 
 
 def _warm_frames() -> None:
-    """Reference frames: the straight start's directors (every model) and the trial frames of every iterate."""
+    """Reference frames: the trial frames of every iterate, transported from the committed ones."""
     from .frames import EdgeFrames, trial_frames
     net, q, x, t, length, d1, d2 = _tiny_network()
-    fr = EdgeFrames.initial(t, net.n_hinges)
-    trial_frames(x + 1e-6, net.edges, net.hinge_edges, net.hinge_sign, fr)
+    committed = EdgeFrames(t, d1, d2, np.zeros(net.n_hinges))
+    trial_frames(x + 1e-6, net.edges, net.hinge_edges, net.hinge_sign, committed)
 
 
 def _warm_stretch() -> None:
@@ -103,8 +103,8 @@ def _warm_bend_twist() -> None:
 
 
 def _warm_time_stepping() -> None:
-    """What a time-stepped Simulation adds to the model: the predictor and the observer's frame formulas."""
-    from .frames import angle3, material3
+    """What a time-stepped Simulation adds to the model: the predictor and the observer's spin angle."""
+    from .frames import angle3
     from .model import State
     from .stepper import axis_nodes, predict
     net, q, x, t, length, d1, d2 = _tiny_network()
@@ -113,7 +113,6 @@ def _warm_time_stepping() -> None:
     predict(st, 1e-2, axis_nodes(net), net.n_nodes)
     u, w = d1[0], d2[0]
     angle3(u[0], u[1], u[2], w[0], w[1], w[2], t[0, 0], t[0, 1], t[0, 2])
-    material3(u[0], u[1], u[2], w[0], w[1], w[2], float(q[-1]))
 
 
 def _warm_arrow() -> None:
@@ -162,7 +161,7 @@ def _warm_head_torque() -> None:
 
 
 def _warm_clamp() -> None:
-    """The clamp's prescribed twist angles (its unit tangents are the frames group's)."""
+    """The clamp's prescribed twist angles."""
     from .frames import twist_for_director
     net, q, x, t, length, d1, d2 = _tiny_network()
     e = np.arange(2)
@@ -187,10 +186,10 @@ def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float) ->
 
 #: every kernel group, by name. Effects name theirs in ``Effect.kernel_groups``.
 GROUPS: dict[str, Group] = {g.name: g for g in (
-    _group(_warm_frames, ("frames.unit_rows", "frames._trial_frames"), 1.15),
+    _group(_warm_frames, ("frames._trial_frames",), 0.8),
     _group(_warm_stretch, ("elastic._stretch",), 0.35),
     _group(_warm_bend_twist, ("elastic._bend_twist", "elastic._hinge_strains"), 4.9),
-    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3", "frames.material3"), 1.05),
+    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.85),
     _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.6),
     _group(_warm_rft, ("effects.rft",), 0.65),
     _group(_warm_head_torque, ("elastic.tangent_torque",), 0.75),
