@@ -65,7 +65,8 @@ def material3(d10, d11, d12, d20, d21, d22, theta):
 @stage
 def unwrap(angle, reference):
     """``angle`` plus the multiple of 2 pi that brings it closest to ``reference``."""
-    return angle + 2.0 * math.pi * np.round((reference - angle) / (2.0 * math.pi))
+    # np.rint is np.round to 0 decimals (both llvm.rint, half to even); np.round compiles its decimals branch too
+    return angle + 2.0 * math.pi * np.rint((reference - angle) / (2.0 * math.pi))
 
 
 # ------------------------------------------------------------------------------------------- row-wise forms
