@@ -2,6 +2,7 @@
 
     flagbot bench startup                 # the two ratios, 5 rounds
     flagbot bench startup --breakdown     # plus where a warm start spends its time
+    flagbot bench startup --kernels       # plus where a cold start spends it: every compile, by kernel group
 
 Each round times, one after the other, the three commands
 
@@ -54,6 +55,77 @@ if sys.argv[2] == "fast":
     _fast_exit()                                   # as flagbot run ends
 print(time.monotonic(), file=sys.stderr)
 """
+
+
+#: a cold compile of a scene's kernel groups in one process (empty cache: the parent sets NUMBA_CACHE_DIR), every
+#: numba compile recorded: its exclusive CPU seconds (callees' own compiles taken out) and the part of them spent
+#: in LLVM (numba's llvm_lock held)
+KERNELS_CODE = r"""
+import json, sys, time
+from numba.core import event
+from flagbot_sim.physics import warmup
+from flagbot_sim.scene import load_scene
+clock = time.process_time
+stack, rows, group = [], [], [None]
+class Compile(event.Listener):
+    def on_start(self, ev):
+        stack.append([clock(), 0.0, 0.0])
+    def on_end(self, ev):
+        t0, child, llvm = stack.pop()
+        dt = clock() - t0
+        if stack:
+            stack[-1][1] += dt
+        d = ev.data["dispatcher"]
+        rows.append([group[0], d.py_func.__module__.rsplit(".", 1)[-1] + "." + d.py_func.__qualname__,
+                     str(ev.data["args"]), dt - child, llvm])
+class Llvm(event.Listener):
+    def on_start(self, ev):
+        self.t = clock()
+    def on_end(self, ev):
+        if stack:
+            stack[-1][2] += clock() - self.t
+event.register("numba:compile", Compile())
+event.register("numba:llvm_lock", Llvm())
+group[0] = "(numba's set-up)"
+warmup._numba_set_up()
+totals = {}
+for g in warmup.groups_for(load_scene(sys.argv[1])):
+    group[0] = g
+    c = clock()
+    warmup.GROUPS[g].warm()
+    totals[g] = clock() - c
+print(json.dumps({"rows": rows, "totals": totals}))
+"""
+
+
+def print_kernels(scene: str) -> None:
+    """Where a cold compile of the scene's kernels goes: per group, every function numba compiles (the package's
+    kernels and stages, numba's own implementations of numpy calls), its signatures and compile seconds."""
+    import json
+    cache = tempfile.mkdtemp(prefix="flagbot_kernels_cache_")
+    try:
+        p = subprocess.run([sys.executable, "-c", KERNELS_CODE, scene], env=_env(NUMBA_CACHE_DIR=cache),
+                           capture_output=True, text=True, cwd=NEUTRAL_CWD)
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"kernel profile failed: {p.stderr.strip()[-500:]}")
+    data = json.loads(p.stdout.strip().splitlines()[-1])
+    print(f"cold compile of {scene}'s kernel groups in one process (empty cache), CPU seconds, {load()}; "
+          "'numba:' rows are numba's own implementations of numpy calls, compiled for the kernels that use them")
+    print(f"  {'group':16s} {'function':46s} {'sigs':>4s} {'compile':>8s} {'of it LLVM':>10s}")
+    by = {}
+    for g, name, sig, cpu, llvm in data["rows"]:
+        name = name if not name.startswith(("arrayobj.", "arraymath.", "numbers.")) else "numba: " + name
+        r = by.setdefault((g, name), [0, 0.0, 0.0])
+        r[0] += 1
+        r[1] += cpu
+        r[2] += llvm
+    for (g, name), (n, cpu, llvm) in sorted(by.items(), key=lambda kv: (kv[0][0] != "(numba's set-up)", -kv[1][1])):
+        dup = "  (one per argument dtype)" if n > 1 and not name.startswith("numba:") else ""
+        print(f"  {g:16s} {name[:46]:46s} {n:4d} {cpu:8.2f} {llvm:10.2f}{dup}")
+    print(f"  {'per group':16s}" + "  ".join(f"{g} {t:.2f}" for g, t in data["totals"].items()))
+    print(f"  {'total':16s} {sum(data['totals'].values()):.2f} s in {len(data['rows'])} compiles")
 
 
 def flagbot_command() -> list[str]:
@@ -151,6 +223,8 @@ def run(args) -> int:
     print(f"  ({load()} after)")
     if args.breakdown:
         print_breakdown(scene)
+    if args.kernels:
+        print_kernels(scene)
     return 0
 
 

@@ -425,7 +425,9 @@ def _change_variables(grad, Hs, edges, sign, hg, hh, want_hessian):
     """Apply y_theta = theta + Omega(x) to every hinge: g <- g + g_theta dOmega/dx and
     H <- T^T H T + sum_k g_theta_k d2Omega_k, with dOmega of the hinge's two edges in its local DOFs (edge a
     joins local nodes 0-1, edge b nodes 1-2; a reversed edge flips the sign)."""
-    Vh = np.zeros(22)            # dOmega of edge a (0:11) and of edge b (11:22) in the local DOFs
+    Vh = np.empty(22)            # dOmega of edge a (0:11) and of edge b (11:22) in the local DOFs
+    for m in range(22):          # (np.zeros would compile two more functions)
+        Vh[m] = 0.0
     Ht = np.empty(22)            # rows 9 and 10 of the hinge's Hessian before the change
     for h in range(grad.shape[0]):
         ea, eb = edges[h, 0], edges[h, 1]
