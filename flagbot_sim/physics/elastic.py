@@ -483,15 +483,15 @@ def _scatter(dofs, slots, grad, Hs, r, J, want_hessian):
 
 @kernel
 def _bend_twist(x, theta, t, tc, length, d1, d2, rt, nodes, edges, sign, beta, kappa_bar, tau_bar, k_bend,
-                k_twist, dofs, slots, twist_hinge, twist_offset, r, J, want_hessian):
+                k_twist, dofs, slots, twist_hinge, twist_offset, S, r, J, want_hessian):
     """Bend + twist forces of every hinge into r (and their Hessian into J): the stages in order.
 
     Arguments: positions and twist angles; the trial frames (t, t_committed, length, d1, d2, reference twist);
     the springs (nodes, edges, sign, beta, rest curvature and twist, stiffnesses, local DOFs and CSC slots); the
-    motor's natural-twist offset; the outputs."""
+    motor's natural-twist offset; the outputs: S (H, 6) each hinge's lengths and strains (see _hinge_geometry:
+    what ElasticModel.hinge_strains reads), r, J."""
     H, Ne = nodes.shape[0], t.shape[0]
     V = np.empty((H, 21))
-    S = np.empty((H, 6))
     W = np.empty((H, 3))
     G = np.empty((H, 33))
     grad = np.empty((H, 11))
@@ -507,16 +507,6 @@ def _bend_twist(x, theta, t, tc, length, d1, d2, rt, nodes, edges, sign, beta, k
     _edge_holonomy(t, tc, length, hg, hh, want_hessian)
     _change_variables(grad, Hs, edges, sign, hg, hh, want_hessian)
     _scatter(dofs, slots, grad, Hs, r, J, want_hessian)
-
-
-@kernel
-def _hinge_strains(x, theta, d1, d2, rt, nodes, edges, sign, beta, k1s, k2s, taus):
-    H = nodes.shape[0]
-    V = np.empty((H, 21))
-    S = np.empty((H, 6))
-    _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S)
-    for h in range(H):
-        k1s[h], k2s[h], taus[h] = S[h, 3], S[h, 4], S[h, 5]
 
 
 @kernel
@@ -560,6 +550,7 @@ class ElasticModel:
         self.k_twist = net.GJ / net.voronoi
         self.stretch_slots = np.zeros((net.n_edges, 36), np.int64)
         self.hinge_slots = np.zeros((net.n_hinges, 121), np.int64)
+        self._strains = np.empty((net.n_hinges, 6))           # _bend_twist's per-hinge strains, a work array
         # rest strains from the undeformed configuration with theta = 0
         q0 = net.initial_q()
         x0 = self.positions(q0)
@@ -592,13 +583,13 @@ class ElasticModel:
 
     # ------------------------------------------------------------------ strains and energy
     def hinge_strains(self, q: np.ndarray, fr: TrialFrames):
-        """(kappa1, kappa2, tau) of every hinge; tau without the natural twist."""
-        H = self.net.n_hinges
-        k1, k2, tau = np.empty(H), np.empty(H), np.empty(H)
-        net = self.net
-        _hinge_strains(self.positions(q), q[3 * self.n_nodes:], fr.d1, fr.d2, fr.ref_twist, net.hinge_nodes,
-                       net.hinge_edges, self.sign, self.beta, k1, k2, tau)
-        return k1, k2, tau
+        """(kappa1, kappa2, tau) of every hinge; tau without the natural twist.
+
+        Read from the springs' own evaluation (its gradient discarded): a kernel of its own for the strains alone
+        cost a first run ~0.2 s of compiling, for a model's start and the motor torque of each snapshot."""
+        S = np.empty((self.net.n_hinges, 6))
+        self._bend_twist(q, fr, S, np.zeros(self.ndof), None)
+        return S[:, 3].copy(), S[:, 4].copy(), S[:, 5].copy()
 
     def stretch_strain(self, fr: TrialFrames) -> np.ndarray:
         return fr.length / self.net.edge_rest_length - 1.0
@@ -615,10 +606,16 @@ class ElasticModel:
                    twist_hinge: int = -1, twist_offset: float = 0.0) -> None:
         """Add the elastic gradient to r and, if J (CSC data array) is given, the Hessian to J."""
         want = J is not None
-        d = J if want else np.empty(0)
         net = self.net
-        _stretch(fr.t, fr.length, net.edge_rest_length, net.EA, self.stretch_dofs, self.stretch_slots, r, d, want)
+        _stretch(fr.t, fr.length, net.edge_rest_length, net.EA, self.stretch_dofs, self.stretch_slots, r,
+                 J if want else np.empty(0), want)
+        self._bend_twist(q, fr, self._strains, r, J, twist_hinge, twist_offset)
+
+    def _bend_twist(self, q, fr: TrialFrames, S: np.ndarray, r: np.ndarray, J: np.ndarray | None,
+                    twist_hinge: int = -1, twist_offset: float = 0.0) -> None:
+        want = J is not None
+        net = self.net
         _bend_twist(self.positions(q), q[3 * self.n_nodes:], fr.t, fr.t_committed, fr.length, fr.d1, fr.d2,
                     fr.ref_twist, net.hinge_nodes, net.hinge_edges, self.sign, self.beta, self.kappa_bar,
                     self.tau_bar, self.k_bend, self.k_twist, self.hinge_dofs, self.hinge_slots, twist_hinge,
-                    twist_offset, r, d, want)
+                    twist_offset, S, r, J if want else np.empty(0), want)

@@ -85,20 +85,19 @@ def _warm_stretch() -> None:
 
 
 def _warm_bend_twist() -> None:
-    """The bend-twist springs' residual and Jacobian and their strains (model set-up, motor torque)."""
-    from .elastic import _bend_twist, _hinge_strains, spring_dofs
+    """The bend-twist springs' residual and Jacobian (and so their strains: model set-up, motor torque)."""
+    from .elastic import _bend_twist, spring_dofs
     net, q, x, t, length, d1, d2 = _tiny_network()
     _, hinge = spring_dofs(net)
     H = net.n_hinges
     theta = q[3 * net.n_nodes:]
-    rt, beta, tau_bar, k1, k2 = (np.zeros(H) for _ in range(5))
+    rt, beta, tau_bar = np.zeros(H), np.zeros(H), np.zeros(H)
     kappa_bar = np.zeros((H, 2))
     k_bend, k_twist = net.EI / net.voronoi, net.GJ / net.voronoi
     slots = np.zeros((H, 121), np.int64)
-    _hinge_strains(x, theta, d1, d2, rt, net.hinge_nodes, net.hinge_edges, net.hinge_sign, beta, k1, k2, tau_bar)
     for J in (np.empty(0), np.zeros(1)):
         _bend_twist(x, theta, t, t, length, d1, d2, rt, net.hinge_nodes, net.hinge_edges, net.hinge_sign, beta,
-                    kappa_bar, tau_bar, k_bend, k_twist, hinge, slots, int(net.motor_hinge), 0.0,
+                    kappa_bar, tau_bar, k_bend, k_twist, hinge, slots, int(net.motor_hinge), 0.0, np.empty((H, 6)),
                     np.zeros(net.ndof), J, len(J) > 0)
 
 
@@ -188,7 +187,7 @@ def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float) ->
 GROUPS: dict[str, Group] = {g.name: g for g in (
     _group(_warm_frames, ("frames._trial_frames",), 0.8),
     _group(_warm_stretch, ("elastic._stretch",), 0.35),
-    _group(_warm_bend_twist, ("elastic._bend_twist", "elastic._hinge_strains"), 4.9),
+    _group(_warm_bend_twist, ("elastic._bend_twist",), 4.5),
     _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.85),
     _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.6),
     _group(_warm_rft, ("effects.rft",), 0.65),
