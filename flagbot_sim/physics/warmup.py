@@ -185,14 +185,14 @@ def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float) ->
 
 #: every kernel group, by name. Effects name theirs in ``Effect.kernel_groups``.
 GROUPS: dict[str, Group] = {g.name: g for g in (
-    _group(_warm_frames, ("frames._trial_frames",), 0.8),
+    _group(_warm_frames, ("frames._trial_frames",), 0.65),
     _group(_warm_stretch, ("elastic._stretch",), 0.35),
     _group(_warm_bend_twist, ("elastic._bend_twist",), 4.5),
-    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.85),
-    _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.6),
-    _group(_warm_rft, ("effects.rft",), 0.65),
-    _group(_warm_head_torque, ("elastic.tangent_torque",), 0.75),
-    _group(_warm_clamp, ("frames.twist_for_director",), 0.8),
+    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.6),
+    _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.4),
+    _group(_warm_rft, ("effects.rft",), 0.45),
+    _group(_warm_head_torque, ("elastic.tangent_torque",), 0.6),
+    _group(_warm_clamp, ("frames.twist_for_director",), 0.5),
 )}
 
 #: what every model needs: its frames and its springs
