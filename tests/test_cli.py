@@ -185,7 +185,8 @@ def test_only_the_command_line_process_skips_its_final_collection():
     which ends right after, freezes it so that shutdown does not walk every object (0.4 s of a warm run)."""
     import gc
     from flagbot_sim.cli import main
-    assert main(["scenes"]) == 0 and gc.get_freeze_count() == 0
+    frozen = gc.get_freeze_count()          # (a cold kernel compile earlier in this process freezes its objects)
+    assert main(["scenes"]) == 0 and gc.get_freeze_count() == frozen
 
 
 def test_a_reader_that_goes_away_is_no_traceback():

@@ -307,6 +307,7 @@ class _Compile:
         self.groups, self.notify, self.t0 = groups, notify, t0
         self.done: list[str] = []
         self.lock = threading.Lock()
+        self.helper_done = threading.Event()
 
     def run(self) -> None:
         with _fewer_collections():
@@ -318,10 +319,8 @@ class _Compile:
             self.notify(f"flagbot_sim: compiling kernels (first run only; later runs load them from the cache): "
                         f"{len(self.groups)} groups ({', '.join(self.groups)}) {how}")
             helper = _start_helper(theirs) if theirs else None
-            reader = None
             if helper is not None:
-                reader = threading.Thread(target=self._read, args=(helper,), daemon=True)
-                reader.start()
+                threading.Thread(target=self._read, args=(helper,), daemon=True).start()
             try:
                 for g in mine:
                     GROUPS[g].warm()
@@ -332,16 +331,27 @@ class _Compile:
                     helper.kill()
                 raise
             if helper is not None:
-                reader.join()
-                helper.wait()
+                if not self.helper_done.is_set():
+                    gc.collect()              # this process's compiling garbage, while the helper still works
+                self.helper_done.wait()
         # a group the helper did not finish is compiled by ensure_compiled, which warms every group afterwards
         self.notify(f"flagbot_sim: kernels compiled in {time.perf_counter() - self.t0:.1f} s")
 
     def _read(self, helper: _Helper) -> None:
-        for line in helper.lines:
-            parts = line.split()
-            if len(parts) == 2 and parts[0] == "done" and parts[1] in GROUPS:
-                self._finished(parts[1])
+        """Report the helper's groups as they finish; once all have (or it ended), let this process go on at
+        once and reap the helper here: a process that compiled takes ~0.5 s to end (its memory is released)."""
+        expected = set(self.share[1])
+        try:
+            for line in helper.lines:
+                parts = line.split()
+                if len(parts) == 2 and parts[0] == "done" and parts[1] in expected:
+                    self._finished(parts[1])
+                    expected.discard(parts[1])
+                    if not expected:
+                        self.helper_done.set()
+        finally:
+            self.helper_done.set()
+            helper.wait()
 
     def time_left(self, elapsed: float) -> float | None:
         """Seconds until the later of the two processes finishes, if each goes on at the rate it has shown (a
@@ -370,20 +380,23 @@ class _Compile:
 
 @contextlib.contextmanager
 def _fewer_collections():
-    """Compiling allocates millions of short-lived objects: with the objects alive now frozen out of the
-    collector's sweeps and a larger first-generation threshold, it spends ~0.2 s collecting instead of ~0.55 s
-    per group set (docs/startup.md). The thresholds and the objects are handed back afterwards."""
+    """Keep the garbage collector out of the compile's way (docs/startup.md).
+
+    Compiling allocates millions of short-lived objects and leaves ~10^6 long-lived ones behind (numba keeps each
+    kernel's typed IR). With the objects alive at the start frozen out of the collector's sweeps and a larger
+    first-generation threshold, a compile spends ~0.2 s collecting instead of ~0.55 s; at the end everything
+    alive is frozen too (the caller collects first when it has time to wait), or the next full collection walks
+    it all again (~0.3 s, just when the simulation starts) and every later one too. Freezing keeps nothing
+    alive: reference counting frees frozen objects as ever, only a cycle among them waits. The thresholds are
+    handed back."""
     old = gc.get_threshold()
-    freeze = gc.get_freeze_count() == 0          # (objects someone else froze stay frozen)
-    if freeze:
-        gc.freeze()
+    gc.freeze()
     gc.set_threshold(50_000, 20, 20)
     try:
         yield
     finally:
         gc.set_threshold(*old)
-        if freeze:
-            gc.unfreeze()
+        gc.freeze()
 
 
 def _numba_set_up() -> None:
@@ -413,8 +426,10 @@ class _Helper:
                 code = 1
                 try:
                     os.close(r)
-                    with os.fdopen(w, "w") as out:
-                        _compile_groups(groups, out)
+                    out = os.fdopen(w, "w")
+                    for g in groups:                  # (the collector as the parent set it for compiling)
+                        GROUPS[g].warm()
+                        print("done", g, file=out, flush=True)
                     code = 0
                 finally:
                     os._exit(code)
