@@ -150,3 +150,35 @@ def test_the_time_left_follows_the_rate_each_process_has_shown():
     assert c.time_left(2.0) == pytest.approx(max(w["bend_twist"], w["frames"]) / rate)
     c.done = ["arrow", "bend_twist"]
     assert c.time_left(4.0) == pytest.approx(w["frames"] / (w["arrow"] / 4.0))
+
+
+def test_a_process_with_threads_compiles_with_a_fresh_interpreter_as_helper(tmp_path):
+    """A ROS node has its middleware's threads: the helper is then not forked but started as a fresh
+    interpreter, and the groups it compiled are loaded here afterwards (nothing is compiled twice)."""
+    code = """
+import sys, threading, time
+from numba.core import event
+from flagbot_sim.physics import warmup
+threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
+assert not warmup._single_threaded_linux()
+groups = ["arrow", "frames", "stretch", "clamp"]
+mine, theirs = warmup.split(groups, 2, warmup.HELPER_START["spawn"])
+lines = []
+with event.install_recorder("numba:compile") as rec:
+    warmup.ensure_compiled(notify=lines.append, groups=groups)
+here = {ev.data["dispatcher"].py_func.__name__ for _, ev in rec.buffer}
+print(repr((mine, theirs, lines, sorted(here))))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr
+    mine, theirs, lines, here = eval(p.stdout.strip().splitlines()[-1])
+    assert theirs and "in 2 processes" in lines[0] and lines[-1].startswith("flagbot_sim: kernels compiled in")
+    cached = _cached_kernels(tmp_path)
+    kernel = {g: {k.split(".")[1] for k in warmup.GROUPS[g].kernels} for g in mine + theirs}
+    for g in theirs:            # compiled by the helper, loaded (not compiled) here
+        assert {f"{warmup.GROUPS[g].kernels[0].split('.')[0]}.{k}" for k in kernel[g]} <= cached
+        assert not kernel[g] & set(here), g
+    for g in mine:
+        assert kernel[g] <= set(here), g
