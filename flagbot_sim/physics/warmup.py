@@ -185,21 +185,22 @@ def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float) ->
 
 #: every kernel group, by name. Effects name theirs in ``Effect.kernel_groups``.
 GROUPS: dict[str, Group] = {g.name: g for g in (
-    _group(_warm_frames, ("frames._trial_frames",), 0.65),
-    _group(_warm_stretch, ("elastic._stretch",), 0.35),
-    _group(_warm_bend_twist, ("elastic._bend_twist",), 4.5),
-    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.6),
-    _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.4),
-    _group(_warm_rft, ("effects.rft",), 0.45),
-    _group(_warm_head_torque, ("elastic.tangent_torque",), 0.6),
-    _group(_warm_clamp, ("frames.twist_for_director",), 0.5),
+    _group(_warm_frames, ("frames._trial_frames",), 0.45),
+    _group(_warm_stretch, ("elastic._stretch",), 0.25),
+    _group(_warm_bend_twist, ("elastic._bend_twist",), 3.4),
+    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.55),
+    _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.15),
+    _group(_warm_rft, ("effects.rft",), 0.35),
+    _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
+    _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
 )}
 
 #: what every model needs: its frames and its springs
 MODEL_GROUPS = ("frames", "stretch", "bend_twist")
-#: the helper process's start in the units of ``Group.weight``: forked, and as a fresh interpreter (which
-#: imports numpy, scipy and numba and sets numba's compiler up again)
-HELPER_START = {"fork": 0.1, "spawn": 1.1}
+#: the helper process's start in the units of ``Group.weight``: forked (measured: a forked child compiles ~10%
+#: slower, copying the pages it touches), and as a fresh interpreter (which imports numpy, scipy and numba and
+#: sets numba's compiler up again)
+HELPER_START = {"fork": 0.4, "spawn": 1.1}
 
 
 def groups_for(scene, time_stepping: bool = True) -> list[str]:
@@ -306,6 +307,7 @@ class _Compile:
     def __init__(self, groups: list[str], notify: Callable[[str], None], t0: float):
         self.groups, self.notify, self.t0 = groups, notify, t0
         self.done: list[str] = []
+        self.t_compile = t0
         self.lock = threading.Lock()
         self.helper_done = threading.Event()
 
@@ -315,6 +317,7 @@ class _Compile:
             mine, theirs = split(self.groups, _cores(),
                                  HELPER_START["fork" if _single_threaded_linux() else "spawn"])
             self.share = [mine, theirs]
+            self.t_compile = time.perf_counter()
             how = "in 2 processes" if theirs else "in 1 process"
             self.notify(f"flagbot_sim: compiling kernels (first run only; later runs load them from the cache): "
                         f"{len(self.groups)} groups ({', '.join(self.groups)}) {how}")
@@ -354,25 +357,26 @@ class _Compile:
             helper.wait()
 
     def time_left(self, elapsed: float) -> float | None:
-        """Seconds until the later of the two processes finishes, if each goes on at the rate it has shown (a
-        process with nothing finished yet at the other's rate); None before any group has finished."""
-        rates, left = [], []
+        """Seconds until the later of the two processes finishes, if each goes on at the rate it has shown in
+        the ``elapsed`` seconds since compiling began (a process with nothing finished yet is taken to go at
+        the other's rate since then); None before any group has finished."""
+        rates = []
         for share in self.share:
             done = sum(GROUPS[g].weight for g in share if g in self.done)
             rates.append(done / elapsed if done > 0 else None)
         known = [r for r in rates if r]
         if not known:
             return None
-        for share, rate in zip(self.share, rates):
-            todo = sum(GROUPS[g].weight for g in share if g not in self.done)
-            left.append(todo / (rate or min(known)))
-        return max(left)
+        finish = [sum(GROUPS[g].weight for g in share) / (rate or min(known))
+                  for share, rate in zip(self.share, rates) if any(g not in self.done for g in share)]
+        return max(0.0, max(finish) - elapsed) if finish else 0.0
 
     def _finished(self, group: str) -> None:
         with self.lock:
             self.done.append(group)
-            elapsed = time.perf_counter() - self.t0
-            left = self.time_left(elapsed)
+            now = time.perf_counter()
+            elapsed = now - self.t0
+            left = self.time_left(now - self.t_compile)        # (the rates from when compiling began)
             tail = f", about {left:.0f} s to go" if left is not None and len(self.done) < len(self.groups) else ""
             self.notify(f"flagbot_sim:   {group} compiled ({len(self.done)}/{len(self.groups)}), "
                         f"{elapsed:.1f} s so far{tail}")
