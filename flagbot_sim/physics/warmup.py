@@ -355,6 +355,7 @@ class _Compile:
         finally:
             self.helper_done.set()
             helper.wait()
+            helper.lines.close()
 
     def time_left(self, elapsed: float) -> float | None:
         """Seconds until the later of the two processes finishes, if each goes on at the rate it has shown in
@@ -423,6 +424,7 @@ class _Helper:
 
     def __init__(self, groups: list[str]):
         self.pid = self.proc = None
+        self._reaping, self._reaped = threading.Lock(), False
         if _single_threaded_linux():
             r, w = os.pipe()
             pid = os.fork()
@@ -445,11 +447,18 @@ class _Helper:
             self.lines = self.proc.stdout
 
     def wait(self) -> None:
-        if self.proc is not None:
-            self.proc.wait()
-        else:
-            os.waitpid(self.pid, 0)
-        self.lines.close()
+        """Reap the helper (once, from whichever thread comes first)."""
+        with self._reaping:
+            if self._reaped:
+                return
+            self._reaped = True
+            try:
+                if self.proc is not None:
+                    self.proc.wait()
+                else:
+                    os.waitpid(self.pid, 0)
+            except ChildProcessError:
+                pass
 
     def kill(self) -> None:
         try:
