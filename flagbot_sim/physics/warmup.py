@@ -197,9 +197,10 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
 
 #: what every model needs: its frames and its springs
 MODEL_GROUPS = ("frames", "stretch", "bend_twist")
-#: the helper process's start in the units of ``Group.weight``: forked (measured: a forked child compiles ~10%
-#: slower, copying the pages it touches), and as a fresh interpreter (which imports numpy, scipy and numba and
-#: sets numba's compiler up again)
+#: the helper process's start in the units of ``Group.weight``, forked or as a fresh interpreter (which imports
+#: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s: the rest of
+#: its 0.4 is what several small groups cost together above their weights, each measured alone (design 1's six
+#: besides bend_twist take as long as bend_twist in one process, where their weights add up to 94% of its)
 HELPER_START = {"fork": 0.4, "spawn": 1.1}
 
 
