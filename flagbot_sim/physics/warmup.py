@@ -25,6 +25,7 @@ import contextlib
 import functools
 import gc
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -454,19 +455,13 @@ class _Helper:
                 return
             self._reaped = True
             try:
-                if self.proc is not None:
-                    self.proc.wait()
-                else:
-                    os.waitpid(self.pid, 0)
+                self.proc.wait() if self.proc is not None else os.waitpid(self.pid, 0)
             except ChildProcessError:
                 pass
 
     def kill(self) -> None:
         try:
-            if self.proc is not None:
-                self.proc.kill()
-            else:
-                os.kill(self.pid, 9)
+            os.kill(self.proc.pid if self.proc is not None else self.pid, signal.SIGKILL)
         except OSError:
             pass
         self.wait()
