@@ -40,7 +40,7 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
     from .physics import warmup
     from .physics.model import RobotModel
     from .physics.steady import SteadyFailed, SteadySolver, summary
-    compile_seconds = warmup.ensure_compiled()
+    compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
     model = RobotModel(scene)
     solver = SteadySolver(model)
     startup = process_age()            # process start to solver ready, as run --json's startup_seconds

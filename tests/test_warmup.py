@@ -1,40 +1,191 @@
-"""Kernels are compiled (first run) or loaded before a simulation starts, never during it, and the first run
-says so once."""
+"""Kernels are compiled (first run) or loaded before a simulation starts, never during it; a scene compiles only
+the kernels of the effects and solvers it uses; the first run says so and reports its progress."""
 import json
+import math
 import os
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
+from numba.core import event
 
 from flagbot_sim.physics import Simulation, warmup
+from flagbot_sim.physics.effects import EFFECT_TYPES
+from flagbot_sim.physics.model import RobotModel
+from flagbot_sim.physics.steady import SteadySolver
 from flagbot_sim.scene import load_scene
 
 from cli_helpers import ROOT
 
+#: scenes that between them use every effect, integrator, error control and linear solver
+SCENES = [("design1", ["robot.n_flagella=3"]), ("clamped_flagellum", []), ("design2", []),
+          ("design1", ["scene.preset='paper'"]), ("design1", ["scene.preset='fast'"]),
+          ("design1", ["numerics.linear_solver='splu'"]),
+          ("design1", ["scene.effects=['inertia','rft','head_drag','motor','granular_yield','gravity']"])]
+
 
 def test_a_run_after_the_warm_up_compiles_nothing():
     warmup.ensure_compiled()
-    before = {d: len(d.signatures) for d in warmup._dispatchers()}
-    for scene, extra in (("design1", ["robot.n_flagella=3"]), ("clamped_flagellum", []), ("design2", [])):
-        sim = Simulation(load_scene(scene, extra))
-        assert sim.compile_seconds == 0.0              # already done in this process
-        sim.run(0.2)
-        sim.summary()
-    after = {d: len(d.signatures) for d in warmup._dispatchers()}
-    assert after == before, {d.py_func.__name__: (before[d], after[d]) for d in after if after[d] != before[d]}
+    with event.install_recorder("numba:compile") as rec:
+        for scene, extra in SCENES:
+            sim = Simulation(load_scene(scene, extra))
+            assert sim.compile_seconds == 0.0              # already done in this process
+            sim.run(0.2)
+            sim.summary()
+            sim.snapshot()
+        for scene in ("design1", "clamped_flagellum"):      # the steady solver and its stability analysis
+            solver = SteadySolver(RobotModel(load_scene(scene)))
+            solver.stability(solver.solve(2 * math.pi))              # 60 rpm
+    compiled = sorted({ev.data["dispatcher"].py_func.__name__ for _, ev in rec.buffer})
+    assert compiled == [], f"compiled during the runs (a signature the warm-up does not make): {compiled}"
+
+
+def test_every_effect_names_kernel_groups_that_exist_and_every_group_is_used():
+    used = set(warmup.MODEL_GROUPS) | {"time_stepping", "arrow"}
+    for cls in EFFECT_TYPES.values():
+        assert set(cls.kernel_groups) <= set(warmup.GROUPS), cls.name
+        used |= set(cls.kernel_groups)
+    assert used == set(warmup.GROUPS)
+    sc = load_scene("design1", ["scene.effects=['inertia','head_drag','motor']", "numerics.linear_solver='splu'"])
+    assert warmup.groups_for(sc) == ["frames", "stretch", "bend_twist", "time_stepping"]
+    assert warmup.groups_for(load_scene("clamped_flagellum"), time_stepping=False) == \
+        ["frames", "stretch", "bend_twist", "rft", "clamp"]
+
+
+def test_the_split_balances_the_two_processes_and_keeps_small_jobs_here():
+    groups = warmup.groups_for(load_scene("design1"))
+    weight = {g: warmup.GROUPS[g].weight for g in groups}
+    mine, theirs = warmup.split(groups, 2, 0.1)
+    assert sorted(mine + theirs) == sorted(groups) and not set(mine) & set(theirs)
+    here, there = sum(weight[g] for g in mine), 0.1 + sum(weight[g] for g in theirs)
+    # greedy largest-first: the two finish within the largest group moved last
+    assert abs(here - there) <= max(weight.values())
+    assert warmup.split(groups, 1, 0.1) == (groups, [])                 # one core: no helper
+    assert warmup.split(["stretch"], 2, 1.1) == (["stretch"], [])       # not worth the helper's start
+
+
+def _run_cold(tmp_path, *args):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([sys.executable, "-m", "flagbot_sim", *args], cwd=ROOT, env=env, capture_output=True,
+                       text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    return p
+
+
+def _cached_kernels(tmp_path) -> set[str]:
+    """'module.function' of every kernel in numba's cache directory (both processes write there)."""
+    return {f.name.split("-")[0] for f in Path(tmp_path / "cache").rglob("*.nbi")}
+
+
+def test_a_scene_compiles_none_of_the_kernels_of_effects_it_does_not_use(tmp_path):
+    # the clamped flagellum has no head: no head torque; a steady solve steps no time: no predictor, no
+    # observer, no arrow solver (it factorises with scipy)
+    p = _run_cold(tmp_path, "steady", "clamped_flagellum", "--no-stability", "--json")
+    assert json.loads(p.stdout)["steady"] is True
+    cached = _cached_kernels(tmp_path)
+    assert {"elastic._bend_twist", "effects._rft_py", "frames.twist_for_director"} <= cached
+    assert not cached & {"elastic.tangent_torque", "stepper._predict_cylindrical", "linsolve._arrow_factor",
+                         "linsolve._arrow_solve"}, cached
+    assert "compiling kernels (first run only" in p.stderr and "(5/5)" in p.stderr
 
 
 def test_first_run_announces_the_compilation_once_and_reports_it_apart(tmp_path):
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     runs = []
     for _ in range(2):
-        p = subprocess.run([sys.executable, "-m", "flagbot_sim", "run", "design1", "--duration", "0.2", "--json"],
-                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-        assert p.returncode == 0, p.stderr
+        p = _run_cold(tmp_path, "run", "design1", "--duration", "0.2", "--json")
         runs.append((json.loads(p.stdout), p.stderr))
     (cold, cold_err), (warm, warm_err) = runs
     assert cold_err.count("compiling kernels (first run only") == 1
+    groups = warmup.groups_for(load_scene("design1"))
+    # one progress line per group, the last one counting them all, and the total
+    for g in groups:
+        assert f"  {g} compiled (" in cold_err
+    assert f"({len(groups)}/{len(groups)})" in cold_err and "kernels compiled in" in cold_err
     assert "compiling" not in warm_err
     # the compile time is reported on its own and is not in the simulation's wall time
     assert cold["compile_seconds"] > 1.0 > cold["wall_seconds"]
     assert warm["compile_seconds"] < cold["compile_seconds"]
     assert cold["omega_h"] == warm["omega_h"] and cold["v"] == warm["v"]
+
+
+@pytest.mark.parametrize("scene,extra", [("design1", ["scene.effects=['inertia','head_drag','motor']"]),
+                                         ("clamped_flagellum", [])])
+def test_a_warm_process_loads_only_its_scenes_groups(scene, extra):
+    """In a fresh process with the cache warm, a simulation loads its own groups and nothing else, and its run
+    needs nothing more (no kernel is loaded or compiled lazily)."""
+    fill = "from flagbot_sim.physics import warmup; warmup.ensure_compiled()"    # a warm cache, in its own process
+    subprocess.run([sys.executable, "-c", fill], cwd=ROOT, check=True, timeout=600, capture_output=True)
+    probe = f"""
+import json
+from flagbot_sim.physics import Simulation, warmup
+from flagbot_sim.scene import load_scene
+scene = load_scene({scene!r}, {extra!r})
+sim = Simulation(scene)
+loaded = {{n: len(warmup._dispatcher(n).overloads) for g in warmup.GROUPS for n in warmup.GROUPS[g].kernels}}
+sim.run(0.2); sim.summary(); sim.snapshot()
+after = {{n: len(warmup._dispatcher(n).overloads) for n in loaded}}
+print(json.dumps([warmup.groups_for(scene), loaded, after]))
+"""
+    p = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    groups, loaded, after = json.loads(p.stdout.strip().splitlines()[-1])
+    assert after == loaded
+    for g, group in warmup.GROUPS.items():
+        for n in group.kernels:
+            if g in groups:
+                assert loaded[n] == 1, n
+            elif n not in {k for h in groups for k in warmup.GROUPS[h].kernels}:
+                assert loaded[n] == 0, f"{n} of group {g} loaded for a scene that does not use it"
+
+
+def test_the_time_left_follows_the_rate_each_process_has_shown():
+    c = warmup._Compile(["bend_twist", "arrow", "frames"], lambda m: None, 0.0)
+    c.share = [["bend_twist"], ["arrow", "frames"]]
+    w = {g: warmup.GROUPS[g].weight for g in c.groups}
+    assert c.time_left(1.0) is None                        # nothing finished: no rate to go by
+    c.done = ["arrow"]                                      # the helper did arrow's weight in 2 s
+    rate = w["arrow"] / 2.0
+    # this process has shown no rate yet: taken to have gone at the helper's since the start; the later decides
+    assert c.time_left(2.0) == pytest.approx(max(w["bend_twist"], w["arrow"] + w["frames"]) / rate - 2.0)
+    c.done = ["arrow", "bend_twist"]                        # this process done at its own rate: the helper left
+    assert c.time_left(4.0) == pytest.approx(w["frames"] / (w["arrow"] / 4.0))
+    c.done = ["arrow", "bend_twist", "frames"]
+    assert c.time_left(5.0) == 0.0
+
+
+def test_a_process_with_threads_compiles_with_a_fresh_interpreter_as_helper(tmp_path):
+    """A ROS node has its middleware's threads: the helper is then not forked but started as a fresh
+    interpreter, and the groups it compiled are loaded here afterwards (nothing is compiled twice)."""
+    code = """
+import sys, threading, time
+from numba.core import event
+from flagbot_sim.physics import warmup
+threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
+assert not warmup._single_threaded_linux()
+groups = ["arrow", "frames", "stretch", "clamp", "rft", "head_torque"]   # (enough work for a helper; no kernel
+                                                                      # of one is another's callee)
+mine, theirs = warmup.split(groups, 2, warmup.HELPER_START["spawn"])
+lines = []
+with event.install_recorder("numba:compile") as rec:
+    warmup.ensure_compiled(notify=lines.append, groups=groups)
+here = {ev.data["dispatcher"].py_func.__name__ for _, ev in rec.buffer}
+print(repr((mine, theirs, lines, sorted(here))))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr
+    mine, theirs, lines, here = eval(p.stdout.strip().splitlines()[-1])
+    assert theirs and "in 2 processes" in lines[0] and lines[-1].startswith("flagbot_sim: kernels compiled in")
+    cached = _cached_kernels(tmp_path)
+    for g in theirs:            # compiled by the helper (in the cache), loaded (not compiled) here
+        assert _cache_names(g) <= cached, g
+        assert not {n.split(".")[1] for n in _cache_names(g)} & set(here), g
+    for g in mine:
+        assert {n.split(".")[1] for n in _cache_names(g)} <= set(here), g
+
+
+def _cache_names(group: str) -> set[str]:
+    """'module.function' of the group's kernels as numba names them (the rft kernel is effects._rft_py)."""
+    return {k if k != "effects.rft" else "effects._rft_py" for k in warmup.GROUPS[group].kernels}

@@ -36,10 +36,13 @@ def speed_arguments(ap) -> None:
 
 
 def startup_arguments(ap) -> None:
-    ap.add_argument("--repeat", type=int, default=3, help="timed runs of each kind (min / median / max reported)")
+    ap.add_argument("--repeat", type=int, default=5, help="rounds of import, warm, cold runs (median and min - max "
+                                                          "of each and of the ratios within a round)")
     ap.add_argument("--scene", default="design1", help="scene to run (default design1)")
-    ap.add_argument("--no-cold", action="store_true", help="skip the cold runs (each compiles every kernel)")
+    ap.add_argument("--no-cold", action="store_true", help="skip the cold runs (each compiles the scene's kernels)")
     ap.add_argument("--breakdown", action="store_true", help="also time the phases of a warm start in one process")
+    ap.add_argument("--kernels", action="store_true", help="also profile a cold compile of the scene's kernels: "
+                                                           "every function numba compiles, by group, its seconds")
 
 
 def flood_arguments(ap) -> None:
@@ -74,8 +77,8 @@ def register(sub) -> None:
     m.add_argument("--run-only", action="store_true", help="only the simulation (no ROS)")
     m.add_argument("--node-only", action="store_true", help="only sim_node")
     m.set_defaults(func=_run("memory"))
-    t = bsub.add_parser("startup", help="wall time of `flagbot run` as whole processes: cold (empty kernel cache) "
-                                        "and warm, min / median / max")
+    t = bsub.add_parser("startup", help="start-up of `flagbot run` as whole processes: cold (empty kernel cache) / "
+                                        "warm and warm / `python -c 'import numpy, scipy.sparse, numba'`")
     startup_arguments(t)
     t.set_defaults(func=_run("startup"))
     f = bsub.add_parser("flood", help="sim_node's simulated seconds per wall second and /clock rate under a flood of "

@@ -1,13 +1,21 @@
-"""Start-up time of ``flagbot run``, measured as whole processes the way a user starts them.
+"""Start-up time of ``flagbot run``, measured as whole processes the way a user starts them, as two ratios.
 
-    flagbot bench startup                 # cold and warm, min / median / max of 3
+    flagbot bench startup                 # the two ratios, 5 rounds
     flagbot bench startup --breakdown     # plus where a warm start spends its time
+    flagbot bench startup --kernels       # plus where a cold start spends it: every compile, by kernel group
 
-*Cold*: ``flagbot run SCENE --duration 1`` with ``NUMBA_CACHE_DIR`` pointing to a fresh, empty directory (every
-kernel compiles, as on the first run after an install). *Warm*: ``flagbot run SCENE --duration 0.1`` after one
-untimed run has filled the kernel cache. Both include the interpreter's start and the ROS wheels' re-exec of it
-(their ``.pth`` file restarts Python once with LD_LIBRARY_PATH set). The machine is shared: the load average
-before and after is printed with the figures, and only figures taken on a quiet machine are worth quoting.
+Each round times, one after the other, the three commands
+
+* *import*: ``python -c "import numpy, scipy.sparse, numba"`` (what any numba program pays before its own code),
+* *warm*: ``flagbot run SCENE --duration 0.1`` with the kernel cache filled (by one untimed run beforehand),
+* *cold*: ``flagbot run SCENE --duration 1`` with ``NUMBA_CACHE_DIR`` a fresh, empty directory (every kernel the
+  scene uses compiles, as on the first run after an install),
+
+and takes the ratios cold / warm and warm / import within the round: the machine's speed may drift between rounds
+(these machines are shared), a ratio of runs taken seconds apart holds. Medians and min - max over the rounds are
+printed with the load average before and after; the targets are cold / warm <= 5 and warm / import <= 2. All three
+include the interpreter's start and, for flagbot, the ROS wheels' re-exec of it (their ``.pth`` file restarts
+Python once with LD_LIBRARY_PATH set).
 """
 from __future__ import annotations
 
@@ -49,6 +57,77 @@ print(time.monotonic(), file=sys.stderr)
 """
 
 
+#: a cold compile of a scene's kernel groups in one process (empty cache: the parent sets NUMBA_CACHE_DIR), every
+#: numba compile recorded: its exclusive CPU seconds (callees' own compiles taken out) and the part of them spent
+#: in LLVM (numba's llvm_lock held)
+KERNELS_CODE = r"""
+import json, sys, time
+from numba.core import event
+from flagbot_sim.physics import warmup
+from flagbot_sim.scene import load_scene
+clock = time.process_time
+stack, rows, group = [], [], [None]
+class Compile(event.Listener):
+    def on_start(self, ev):
+        stack.append([clock(), 0.0, 0.0])
+    def on_end(self, ev):
+        t0, child, llvm = stack.pop()
+        dt = clock() - t0
+        if stack:
+            stack[-1][1] += dt
+        d = ev.data["dispatcher"]
+        rows.append([group[0], d.py_func.__module__.rsplit(".", 1)[-1] + "." + d.py_func.__qualname__,
+                     str(ev.data["args"]), dt - child, llvm])
+class Llvm(event.Listener):
+    def on_start(self, ev):
+        self.t = clock()
+    def on_end(self, ev):
+        if stack:
+            stack[-1][2] += clock() - self.t
+event.register("numba:compile", Compile())
+event.register("numba:llvm_lock", Llvm())
+group[0] = "(numba's set-up)"
+warmup._numba_set_up()
+totals = {}
+for g in warmup.groups_for(load_scene(sys.argv[1])):
+    group[0] = g
+    c = clock()
+    warmup.GROUPS[g].warm()
+    totals[g] = clock() - c
+print(json.dumps({"rows": rows, "totals": totals}))
+"""
+
+
+def print_kernels(scene: str) -> None:
+    """Where a cold compile of the scene's kernels goes: per group, every function numba compiles (the package's
+    kernels and stages, numba's own implementations of numpy calls), its signatures and compile seconds."""
+    import json
+    cache = tempfile.mkdtemp(prefix="flagbot_kernels_cache_")
+    try:
+        p = subprocess.run([sys.executable, "-c", KERNELS_CODE, scene], env=_env(NUMBA_CACHE_DIR=cache),
+                           capture_output=True, text=True, cwd=NEUTRAL_CWD)
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"kernel profile failed: {p.stderr.strip()[-500:]}")
+    data = json.loads(p.stdout.strip().splitlines()[-1])
+    print(f"cold compile of {scene}'s kernel groups in one process (empty cache), CPU seconds, {load()}; "
+          "'numba:' rows are numba's own implementations of numpy calls, compiled for the kernels that use them")
+    print(f"  {'group':16s} {'function':46s} {'sigs':>4s} {'compile':>8s} {'of it LLVM':>10s}")
+    by = {}
+    for g, name, sig, cpu, llvm in data["rows"]:
+        name = name if not name.startswith(("arrayobj.", "arraymath.", "numbers.")) else "numba: " + name
+        r = by.setdefault((g, name), [0, 0.0, 0.0])
+        r[0] += 1
+        r[1] += cpu
+        r[2] += llvm
+    for (g, name), (n, cpu, llvm) in sorted(by.items(), key=lambda kv: (kv[0][0] != "(numba's set-up)", -kv[1][1])):
+        dup = "  (one per argument dtype)" if n > 1 and not name.startswith("numba:") else ""
+        print(f"  {g:16s} {name[:46]:46s} {n:4d} {cpu:8.2f} {llvm:10.2f}{dup}")
+    print(f"  {'per group':16s}" + "  ".join(f"{g} {t:.2f}" for g, t in data["totals"].items()))
+    print(f"  {'total':16s} {sum(data['totals'].values()):.2f} s in {len(data['rows'])} compiles")
+
+
 def flagbot_command() -> list[str]:
     """``flagbot`` as installed next to this interpreter (the console script users type), else ``-m``."""
     script = Path(sys.executable).with_name("flagbot")
@@ -79,15 +158,21 @@ def time_process(cmd: list[str], env: dict) -> float:
     return wall
 
 
-def stats(values: list[float]) -> str:
-    return f"{min(values):6.2f} / {statistics.median(values):6.2f} / {max(values):6.2f}"
-
-
 def load() -> str:
     try:
         return "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
     except OSError:
         return "load average unknown"
+
+
+#: the yardstick: what any program using numpy, scipy's sparse matrices and numba pays to start
+IMPORT_LINE = "import numpy, scipy.sparse, numba"
+#: the targets of the two ratios (issue 19)
+TARGETS = {"cold / warm": 5.0, "warm / import": 2.0}
+
+
+def ratio_stats(values: list[float]) -> str:
+    return f"{statistics.median(values):5.2f}  ({min(values):.2f} - {max(values):.2f})"
 
 
 def run(args) -> int:
@@ -97,32 +182,49 @@ def run(args) -> int:
     load_scene(args.scene)                          # a bad scene is refused before anything is timed
     scene = str(Path(args.scene).resolve()) if Path(args.scene).is_file() else args.scene   # children: NEUTRAL_CWD
     flagbot = flagbot_command()
-    run_cmd = [*flagbot, "run", scene, "--quiet"]
-    print(f"start-up of `{' '.join([Path(flagbot[0]).name, *flagbot[1:], 'run', args.scene])}` as whole processes, "
-          f"wall seconds, min / median / max of {args.repeat}; {os.cpu_count()} cores, {load()}")
-    rows = []
-    py = [sys.executable, "-c", "pass"]
-    rows.append(("python -c pass", [time_process(py, _env()) for _ in range(args.repeat)]))
-    rows.append(("python -c pass, without the ROS wheels' re-exec",
-                 [time_process(py, _env(_ROS_WHEELS_BOOTSTRAP_COMPLETE="1")) for _ in range(args.repeat)]))
-    time_process([*run_cmd, "--duration", "0.1"], _env())           # fill the kernel cache (untimed)
-    warm = [time_process([*run_cmd, "--duration", "0.1"], _env()) for _ in range(args.repeat)]
-    rows.append(("warm: --duration 0.1 (kernel cache filled)", warm))
-    if not args.no_cold:
-        cold = []
+    run_cmd = [*flagbot, "run", scene]
+    warm_cmd = [*run_cmd, "--duration", "0.1"]
+    cold_cmd = [*run_cmd, "--duration", "1"]
+    import_cmd = [sys.executable, "-c", IMPORT_LINE]
+    name = " ".join([Path(flagbot[0]).name, *flagbot[1:], "run", args.scene])
+    kinds = "import, warm" + ("" if args.no_cold else ", cold")
+    print(f"start-up of `{name}` as whole processes, {args.repeat} rounds of {kinds} (in turn); "
+          f"{os.cpu_count()} cores, {load()}")
+    warm_cache = tempfile.mkdtemp(prefix="flagbot_warm_cache_")
+    times = {"import": [], "warm": [], "cold": []}
+    try:
+        time_process(warm_cmd, _env(NUMBA_CACHE_DIR=warm_cache))         # fill the kernel cache (untimed)
         for _ in range(args.repeat):
-            cache = tempfile.mkdtemp(prefix="flagbot_cold_cache_")
-            try:
-                cold.append(time_process([*run_cmd, "--duration", "1"], _env(NUMBA_CACHE_DIR=cache)))
-            finally:
-                shutil.rmtree(cache, ignore_errors=True)
-        rows.append(("cold: --duration 1 (empty kernel cache)", cold))
-    width = max(len(r[0]) for r in rows)
-    for label, values in rows:
-        print(f"  {label:{width}s}  {stats(values)}")
+            times["import"].append(time_process(import_cmd, _env()))
+            times["warm"].append(time_process(warm_cmd, _env(NUMBA_CACHE_DIR=warm_cache)))
+            if not args.no_cold:
+                cache = tempfile.mkdtemp(prefix="flagbot_cold_cache_")
+                try:
+                    times["cold"].append(time_process(cold_cmd, _env(NUMBA_CACHE_DIR=cache)))
+                finally:
+                    shutil.rmtree(cache, ignore_errors=True)
+    finally:
+        shutil.rmtree(warm_cache, ignore_errors=True)
+    labels = {"import": f'import: python -c "{IMPORT_LINE}"',
+              "warm": "warm: --duration 0.1, kernel cache filled",
+              "cold": "cold: --duration 1, empty kernel cache"}
+    width = max(len(v) for v in labels.values())
+    print(f"  {'wall seconds':{width}s}  median  (min - max)")
+    for k, values in times.items():
+        if values:
+            print(f"  {labels[k]:{width}s}  {ratio_stats(values)}")
+    ratios = {"warm / import": [w / i for w, i in zip(times["warm"], times["import"])]}
+    if times["cold"]:
+        ratios = {"cold / warm": [c / w for c, w in zip(times["cold"], times["warm"])], **ratios}
+    print("  ratios, round by round")
+    for k, values in ratios.items():
+        verdict = "meets" if statistics.median(values) <= TARGETS[k] else "misses"
+        print(f"  {k:{width}s}  {ratio_stats(values)}   target <= {TARGETS[k]:g}: {verdict} it")
     print(f"  ({load()} after)")
     if args.breakdown:
         print_breakdown(scene)
+    if args.kernels:
+        print_kernels(scene)
     return 0
 
 

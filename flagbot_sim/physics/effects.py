@@ -66,6 +66,8 @@ class Effect:
     on_head: ClassVar[bool] = False
     #: DOFs the stepper holds at values the effect prescribes (their residual rows become identity rows)
     prescribed_dofs: np.ndarray = _NO_DOFS
+    #: the compiled kernels it calls, as groups of physics.warmup.GROUPS (compiled only for scenes listing it)
+    kernel_groups: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def from_scene(cls, scene, net: RodNetwork, elastic) -> "Effect":
@@ -184,8 +186,8 @@ def rft_kernel():
     by the scene validator for the registry alone, which must not pull in numba."""
     global _RFT
     if _RFT is None:
-        from numba import njit
-        _RFT = njit(cache=True)(_rft_py)
+        from .jit import kernel
+        _RFT = kernel(_rft_py)
     return _RFT
 
 
@@ -198,6 +200,7 @@ class RFTDrag(Effect):
     keeps Newton quadratic when the flagella swing).
     """
     name = "rft"
+    kernel_groups = ("rft",)
     description = "resistive-force-theory drag of the medium on the flagella (eta_t, eta_p from mu, L, r0)"
 
     def __init__(self, net: RodNetwork, eta_t: float, eta_p: float):
@@ -285,6 +288,7 @@ class HeadTorque(Effect):
     like a slowly growing precession, and design 1 "unstable" above ~117 rpm).
     """
     name = "head_torque"
+    kernel_groups = ("head_torque",)
     description = "Stokes torque on the head spin, -C2*8*pi*mu*R_h^3*omega_h"
     on_head = True
 
@@ -350,6 +354,7 @@ class Clamp(Driver):
     prescribed; the twist angles are chosen so that the material frames turn rigidly with the plate.
     """
     name = "clamp"
+    kernel_groups = ("clamp",)
     description = ("flagellum base clamped to a plate driven about the axis at omega (no head; the paper's "
                    "'clamped flagellum fixed in space')")
 

@@ -25,35 +25,39 @@ from __future__ import annotations
 
 import math
 import numpy as np
-from numba import njit
 
 from .frames import EdgeFrames, TrialFrames, cross3, trial_frames
+from .jit import kernel, stage
 from .network import RodNetwork
 
 # ----------------------------------------------------------------------------------------------- stretching
-@njit(cache=True)
+@kernel
 def _stretch(t, length, rest, EA, dofs, slots, r, J, want_hessian):
-    """E = 1/2 EA (l/l0 - 1)^2 l0 per edge: gradient into r, Hessian into J."""
+    """E = 1/2 EA (l/l0 - 1)^2 l0 per edge: gradient into r, Hessian into J (``slots`` (Ne, 36): the edge's
+    6x6 block, row-major)."""
     for k in range(t.shape[0]):
         L0 = rest[k]
         f = EA[k] * (length[k] / L0 - 1.0)
+        dk = dofs[k]
         for i in range(3):
-            r[dofs[k, i]] -= f * t[k, i]
-            r[dofs[k, 3 + i]] += f * t[k, i]
+            ti = t[k, i]
+            r[dk[i]] -= f * ti
+            r[dk[3 + i]] += f * ti
         if want_hessian:
             a = EA[k] / L0
             b = EA[k] * (1.0 / L0 - 1.0 / length[k])
+            sk = slots[k]
             for i in range(3):
                 for j in range(3):
                     tt = t[k, i] * t[k, j]
                     K = a * tt + b * ((1.0 if i == j else 0.0) - tt)
-                    J[slots[k, i, j]] += K
-                    J[slots[k, 3 + i, 3 + j]] += K
-                    J[slots[k, i, 3 + j]] -= K
-                    J[slots[k, 3 + i, j]] -= K
+                    J[sk[6 * i + j]] += K
+                    J[sk[6 * (3 + i) + 3 + j]] += K
+                    J[sk[6 * i + 3 + j]] -= K
+                    J[sk[6 * (3 + i) + j]] -= K
 
 
-@njit(cache=True)
+@kernel
 def _stretch_energy(length, rest, EA):
     E = 0.0
     for k in range(length.shape[0]):
@@ -64,21 +68,31 @@ def _stretch_energy(length, rest, EA):
 
 # ----------------------------------------------------------------------------------------------- hinge stages
 # Each stage is one loop over all hinges with its formula written on local scalars; the stages hand arrays over
-# all hinges to each other. (A per-hinge function taking the spring arrays was 6x slower: numba passes every
-# array struct by value at every call.)
+# all hinges to each other, one flat row per hinge: V (21) the hinge's 3-vectors, S (6) its scalars, G (33) the
+# strain gradients, Hs (121) its Hessian, row-major. (A per-hinge function taking the spring arrays was 6x
+# slower: numba passes every array struct by value at every call. Flat rows compile to half the code of 2-D
+# ones: every index of an array access costs its own bounds arithmetic.)
 
-@njit(cache=True)
+#: offsets of the 3-vectors in a row of V: unit edge tangents, material directors, curvature binormal
+TE, TF, M1A, M2A, M1B, M2B, KB = 0, 3, 6, 9, 12, 15, 18
+
+
+@stage
 def _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S):
     """Kinematics and strains of every hinge (paper Eqs. curvature, BendingCurvature1/2, twistingEnergy).
 
-    V[h] (7, 3): unit edge tangents te, tf, material directors m1a, m2a, m1b, m2b, curvature binormal kb.
-    S[h] (6): edge lengths ne, nf, chi = 1 + te.tf, kappa1, kappa2, and the twist tau without natural twist."""
+    V[h] (21): unit edge tangents te, tf, material directors m1a, m2a, m1b, m2b, curvature binormal kb (offsets
+    TE ... KB). S[h] (6): edge lengths ne, nf, chi = 1 + te.tf, kappa1, kappa2, and the twist tau without
+    natural twist."""
     for h in range(nodes.shape[0]):
         a, b, c = nodes[h, 0], nodes[h, 1], nodes[h, 2]
         ea, eb = edges[h, 0], edges[h, 1]
         sa, sb = sign[h, 0], sign[h, 1]
-        e0, e1, e2 = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
-        f0, f1, f2 = x[c, 0] - x[b, 0], x[c, 1] - x[b, 1], x[c, 2] - x[b, 2]
+        xa0, xa1, xa2 = x[a, 0], x[a, 1], x[a, 2]
+        xb0, xb1, xb2 = x[b, 0], x[b, 1], x[b, 2]
+        xc0, xc1, xc2 = x[c, 0], x[c, 1], x[c, 2]
+        e0, e1, e2 = xb0 - xa0, xb1 - xa1, xb2 - xa2
+        f0, f1, f2 = xc0 - xb0, xc1 - xb1, xc2 - xb2
         ne = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
         nf = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
         e0, e1, e2 = e0 / ne, e1 / ne, e2 / ne
@@ -92,37 +106,39 @@ def _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S):
         kb1 = 2.0 * (e2 * f0 - e0 * f2) / chi
         kb2 = 2.0 * (e0 * f1 - e1 * f0) / chi
         Vh = V[h]
-        Vh[0, 0], Vh[0, 1], Vh[0, 2] = e0, e1, e2
-        Vh[1, 0], Vh[1, 1], Vh[1, 2] = f0, f1, f2
-        Vh[6, 0], Vh[6, 1], Vh[6, 2] = kb0, kb1, kb2
+        Vh[TE], Vh[TE + 1], Vh[TE + 2] = e0, e1, e2
+        Vh[TF], Vh[TF + 1], Vh[TF + 2] = f0, f1, f2
+        Vh[KB], Vh[KB + 1], Vh[KB + 2] = kb0, kb1, kb2
         k1 = 0.0
         k2 = 0.0
         for i in range(3):
             # an edge traversed against its direction enters with the reference frame (d1, -d2)
-            m1a = ca * d1[ea, i] + sna * sa * d2[ea, i]
-            m2a = -sna * d1[ea, i] + ca * sa * d2[ea, i]
-            m1b = cb * d1[eb, i] + snb * sb * d2[eb, i]
-            m2b = -snb * d1[eb, i] + cb * sb * d2[eb, i]
-            Vh[2, i], Vh[3, i], Vh[4, i], Vh[5, i] = m1a, m2a, m1b, m2b
-            kbi = Vh[6, i]
+            d1a, d2a, d1b, d2b = d1[ea, i], d2[ea, i], d1[eb, i], d2[eb, i]
+            m1a = ca * d1a + sna * sa * d2a
+            m2a = -sna * d1a + ca * sa * d2a
+            m1b = cb * d1b + snb * sb * d2b
+            m2b = -snb * d1b + cb * sb * d2b
+            Vh[M1A + i], Vh[M2A + i], Vh[M1B + i], Vh[M2B + i] = m1a, m2a, m1b, m2b
+            kbi = Vh[KB + i]
             k1 += 0.5 * kbi * (m2a + m2b)
             k2 -= 0.5 * kbi * (m1a + m1b)
         Sh = S[h]
         Sh[0], Sh[1], Sh[2], Sh[3], Sh[4], Sh[5] = ne, nf, chi, k1, k2, thb - tha + rt[h]
 
 
-@njit(cache=True)
+@stage
 def _hinge_weights(S, kappa_bar, tau_bar, twist_hinge, twist_offset, k_bend, k_twist, W):
     """W[h] = (w1, w2, wt) = k_i (s_i - s_i_bar): the energy's derivative w.r.t. each strain. The natural twist
     of hinge ``twist_hinge`` is shifted by ``twist_offset`` (the motor, paper Eq. SpecifyTheta)."""
     for h in range(S.shape[0]):
         tb = tau_bar[h] + (twist_offset if h == twist_hinge else 0.0)
-        W[h, 0] = k_bend[h] * (S[h, 3] - kappa_bar[h, 0])
-        W[h, 1] = k_bend[h] * (S[h, 4] - kappa_bar[h, 1])
-        W[h, 2] = k_twist[h] * (S[h, 5] - tb)
+        Sh, Wh = S[h], W[h]
+        Wh[0] = k_bend[h] * (Sh[3] - kappa_bar[h, 0])
+        Wh[1] = k_bend[h] * (Sh[4] - kappa_bar[h, 1])
+        Wh[2] = k_twist[h] * (Sh[5] - tb)
 
 
-@njit(cache=True)
+@stage
 def _hinge_energy(S, kappa_bar, tau_bar, twist_hinge, twist_offset, k_bend, k_twist):
     E = 0.0
     for h in range(S.shape[0]):
@@ -132,58 +148,67 @@ def _hinge_energy(S, kappa_bar, tau_bar, twist_hinge, twist_offset, k_bend, k_tw
     return E
 
 
-@njit(cache=True)
+@stage
 def _strain_gradients(V, S, G):
-    """G[h] (3, 11): gradients of kappa1, kappa2, tau w.r.t. [x_a, x_b, x_c, theta_a, theta_b] (edges unsigned).
+    """G[h] (33: three rows of 11): gradients of kappa1, kappa2, tau w.r.t. [x_a, x_b, x_c, theta_a, theta_b]
+    (edges unsigned).
 
     In edge space (e = x_b - x_a, f = x_c - x_b), with tt = (te + tf)/chi, d1~ = (m1a + m1b)/chi,
     d2~ = (m2a + m2b)/chi: dk1/de = (-k1 tt + tf x d2~)/|e|, dk1/df = (-k1 tt - te x d2~)/|f|,
     dk2/de = (-k2 tt - tf x d1~)/|e|, dk2/df = (-k2 tt + te x d1~)/|f|, dtau/de = kb/(2|e|), dtau/df = kb/(2|f|)
     (the last through the reference twist), mapped to nodes by x_a = -e, x_b = e - f, x_c = f."""
+    X = np.empty(12)              # tf x d2~, te x d2~, tf x d1~, te x d1~
     for h in range(V.shape[0]):
-        Vh, Gh = V[h], G[h]
-        ne, nf, chi, k1, k2 = S[h, 0], S[h, 1], S[h, 2], S[h, 3], S[h, 4]
+        Vh, Gh, Sh = V[h], G[h], S[h]
+        ne, nf, chi, k1, k2 = Sh[0], Sh[1], Sh[2], Sh[3], Sh[4]
         ic, ine, inf = 1.0 / chi, 1.0 / ne, 1.0 / nf
-        te0, te1, te2 = Vh[0, 0], Vh[0, 1], Vh[0, 2]
-        tf0, tf1, tf2 = Vh[1, 0], Vh[1, 1], Vh[1, 2]
-        d10, d11, d12 = (Vh[2, 0] + Vh[4, 0]) * ic, (Vh[2, 1] + Vh[4, 1]) * ic, (Vh[2, 2] + Vh[4, 2]) * ic
-        d20, d21, d22 = (Vh[3, 0] + Vh[5, 0]) * ic, (Vh[3, 1] + Vh[5, 1]) * ic, (Vh[3, 2] + Vh[5, 2]) * ic
-        A = cross3(tf0, tf1, tf2, d20, d21, d22)
-        B = cross3(te0, te1, te2, d20, d21, d22)
-        C = cross3(tf0, tf1, tf2, d10, d11, d12)
-        E = cross3(te0, te1, te2, d10, d11, d12)
+        te0, te1, te2 = Vh[TE], Vh[TE + 1], Vh[TE + 2]
+        tf0, tf1, tf2 = Vh[TF], Vh[TF + 1], Vh[TF + 2]
+        m1a0, m1a1, m1a2 = Vh[M1A], Vh[M1A + 1], Vh[M1A + 2]
+        m2a0, m2a1, m2a2 = Vh[M2A], Vh[M2A + 1], Vh[M2A + 2]
+        m1b0, m1b1, m1b2 = Vh[M1B], Vh[M1B + 1], Vh[M1B + 2]
+        m2b0, m2b1, m2b2 = Vh[M2B], Vh[M2B + 1], Vh[M2B + 2]
+        kb0, kb1, kb2 = Vh[KB], Vh[KB + 1], Vh[KB + 2]
+        d10, d11, d12 = (m1a0 + m1b0) * ic, (m1a1 + m1b1) * ic, (m1a2 + m1b2) * ic
+        d20, d21, d22 = (m2a0 + m2b0) * ic, (m2a1 + m2b1) * ic, (m2a2 + m2b2) * ic
+        X[0], X[1], X[2] = cross3(tf0, tf1, tf2, d20, d21, d22)
+        X[3], X[4], X[5] = cross3(te0, te1, te2, d20, d21, d22)
+        X[6], X[7], X[8] = cross3(tf0, tf1, tf2, d10, d11, d12)
+        X[9], X[10], X[11] = cross3(te0, te1, te2, d10, d11, d12)
         for i in range(3):
-            tti = (Vh[0, i] + Vh[1, i]) * ic
-            de0 = (-k1 * tti + A[i]) * ine
-            df0 = (-k1 * tti - B[i]) * inf
-            de1 = (-k2 * tti - C[i]) * ine
-            df1 = (-k2 * tti + E[i]) * inf
-            de2 = 0.5 * Vh[6, i] * ine
-            df2 = 0.5 * Vh[6, i] * inf
-            Gh[0, i], Gh[0, 3 + i], Gh[0, 6 + i] = -de0, de0 - df0, df0
-            Gh[1, i], Gh[1, 3 + i], Gh[1, 6 + i] = -de1, de1 - df1, df1
-            Gh[2, i], Gh[2, 3 + i], Gh[2, 6 + i] = -de2, de2 - df2, df2
-        kbm1a = Vh[6, 0] * Vh[2, 0] + Vh[6, 1] * Vh[2, 1] + Vh[6, 2] * Vh[2, 2]
-        kbm2a = Vh[6, 0] * Vh[3, 0] + Vh[6, 1] * Vh[3, 1] + Vh[6, 2] * Vh[3, 2]
-        kbm1b = Vh[6, 0] * Vh[4, 0] + Vh[6, 1] * Vh[4, 1] + Vh[6, 2] * Vh[4, 2]
-        kbm2b = Vh[6, 0] * Vh[5, 0] + Vh[6, 1] * Vh[5, 1] + Vh[6, 2] * Vh[5, 2]
-        Gh[0, 9], Gh[0, 10] = -0.5 * kbm1a, -0.5 * kbm1b
-        Gh[1, 9], Gh[1, 10] = -0.5 * kbm2a, -0.5 * kbm2b
-        Gh[2, 9], Gh[2, 10] = -1.0, 1.0
+            tti = (Vh[TE + i] + Vh[TF + i]) * ic
+            kbi = Vh[KB + i]
+            de0 = (-k1 * tti + X[i]) * ine
+            df0 = (-k1 * tti - X[3 + i]) * inf
+            de1 = (-k2 * tti - X[6 + i]) * ine
+            df1 = (-k2 * tti + X[9 + i]) * inf
+            de2 = 0.5 * kbi * ine
+            df2 = 0.5 * kbi * inf
+            Gh[i], Gh[3 + i], Gh[6 + i] = -de0, de0 - df0, df0
+            Gh[11 + i], Gh[14 + i], Gh[17 + i] = -de1, de1 - df1, df1
+            Gh[22 + i], Gh[25 + i], Gh[28 + i] = -de2, de2 - df2, df2
+        kbm1a = kb0 * m1a0 + kb1 * m1a1 + kb2 * m1a2
+        kbm2a = kb0 * m2a0 + kb1 * m2a1 + kb2 * m2a2
+        kbm1b = kb0 * m1b0 + kb1 * m1b1 + kb2 * m1b2
+        kbm2b = kb0 * m2b0 + kb1 * m2b1 + kb2 * m2b2
+        Gh[9], Gh[10] = -0.5 * kbm1a, -0.5 * kbm1b
+        Gh[20], Gh[21] = -0.5 * kbm2a, -0.5 * kbm2b
+        Gh[31], Gh[32] = -1.0, 1.0
 
 
-@njit(cache=True)
+@stage
 def _gradients(G, W, sign, grad):
     """grad[h] (11) = sum_i w_i grad(s_i), with the twist DOFs of reversed edges signed."""
     for h in range(G.shape[0]):
+        Gh, gh = G[h], grad[h]
         w1, w2, wt = W[h, 0], W[h, 1], W[h, 2]
         for j in range(9):
-            grad[h, j] = w1 * G[h, 0, j] + w2 * G[h, 1, j] + wt * G[h, 2, j]
-        for j in (9, 10):
-            grad[h, j] = (w1 * G[h, 0, j] + w2 * G[h, 1, j] + wt * G[h, 2, j]) * sign[h, j - 9]
+            gh[j] = w1 * Gh[j] + w2 * Gh[11 + j] + wt * Gh[22 + j]
+        gh[9] = (w1 * Gh[9] + w2 * Gh[20] + wt * Gh[31]) * sign[h, 0]
+        gh[10] = (w1 * Gh[10] + w2 * Gh[21] + wt * Gh[32]) * sign[h, 1]
 
 
-@njit(cache=True)
+@stage
 def _skew(v0, v1, v2, i, j):
     """Entry (i, j) of [v]x (the matrix with [v]x u = v x u): -eps_ijk v_k."""
     if i == j:
@@ -193,112 +218,109 @@ def _skew(v0, v1, v2, i, j):
     return -vk if (j - i) % 3 == 1 else vk
 
 
-@njit(cache=True)
+@stage
 def _hessians(V, S, W, G, sign, k_bend, k_twist, Hs):
-    """Hs[h] (11, 11): the energy's Hessian w.r.t. the hinge's local DOFs, sum_i k_i grad(s_i) grad(s_i)^T +
-    sum_i w_i d2(s_i), twist DOFs of reversed edges signed.
+    """Hs[h] (121: 11 x 11, row-major): the energy's Hessian w.r.t. the hinge's local DOFs,
+    sum_i k_i grad(s_i) grad(s_i)^T + sum_i w_i d2(s_i), twist DOFs of reversed edges signed.
 
     The weighted curvature Hessians are linear in the frame vectors, so they are formed directly from
     K = w1 k1 + w2 k2 and Dv = w1 d2~ - w2 d1~ instead of one Hessian per strain (Bergou et al. 2010; Jawed et
     al. 2018), in edge space (blocks S_ee, S_ff, S_ef) and then mapped to nodes by x_a = -e, x_b = e - f, x_c = f."""
-    See = np.empty((3, 3))
-    Sff = np.empty((3, 3))
-    Sef = np.empty((3, 3))
+    See = np.empty(9)
+    Sff = np.empty(9)
+    Sef = np.empty(9)
+    # the hinge's 3-vectors by row (the loops below index them: a chain of conditional expressions picking one
+    # of three scalars compiles to far more code for the same arithmetic)
+    P = np.empty(24)
+    TT, A, B, MA, MB, SG = 0, 3, 6, 9, 12, 15
     for h in range(V.shape[0]):
-        Vh, Hh, Gh = V[h], Hs[h], G[h]
-        ne, nf, chi, k1, k2 = S[h, 0], S[h, 1], S[h, 2], S[h, 3], S[h, 4]
+        Vh, Hh, Gh, Sh = V[h], Hs[h], G[h], S[h]
+        ne, nf, chi, k1, k2 = Sh[0], Sh[1], Sh[2], Sh[3], Sh[4]
         w1, w2, wt = W[h, 0], W[h, 1], W[h, 2]
         ic, ine, inf = 1.0 / chi, 1.0 / ne, 1.0 / nf
-        te0, te1, te2 = Vh[0, 0], Vh[0, 1], Vh[0, 2]
-        tf0, tf1, tf2 = Vh[1, 0], Vh[1, 1], Vh[1, 2]
-        tt0, tt1, tt2 = (te0 + tf0) * ic, (te1 + tf1) * ic, (te2 + tf2) * ic
-        Dv0 = (w1 * (Vh[3, 0] + Vh[5, 0]) - w2 * (Vh[2, 0] + Vh[4, 0])) * ic
-        Dv1 = (w1 * (Vh[3, 1] + Vh[5, 1]) - w2 * (Vh[2, 1] + Vh[4, 1])) * ic
-        Dv2 = (w1 * (Vh[3, 2] + Vh[5, 2]) - w2 * (Vh[2, 2] + Vh[4, 2])) * ic
-        A0, A1, A2 = cross3(tf0, tf1, tf2, Dv0, Dv1, Dv2)
-        B0, B1, B2 = cross3(te0, te1, te2, Dv0, Dv1, Dv2)
-        K = w1 * k1 + w2 * k2
-        kb0, kb1, kb2 = Vh[6, 0], Vh[6, 1], Vh[6, 2]
+        te0, te1, te2 = Vh[TE], Vh[TE + 1], Vh[TE + 2]
+        tf0, tf1, tf2 = Vh[TF], Vh[TF + 1], Vh[TF + 2]
         for i in range(3):
-            tti = tt0 if i == 0 else (tt1 if i == 1 else tt2)
-            tei = te0 if i == 0 else (te1 if i == 1 else te2)
-            tfi = tf0 if i == 0 else (tf1 if i == 1 else tf2)
-            Ai = A0 if i == 0 else (A1 if i == 1 else A2)
-            Bi = B0 if i == 0 else (B1 if i == 1 else B2)
-            kbi = kb0 if i == 0 else (kb1 if i == 1 else kb2)
-            Mai = w1 * Vh[3, i] - w2 * Vh[2, i]
-            Mbi = w1 * Vh[5, i] - w2 * Vh[4, i]
+            m1ai, m2ai, m1bi, m2bi = Vh[M1A + i], Vh[M2A + i], Vh[M1B + i], Vh[M2B + i]
+            P[TT + i] = (Vh[TE + i] + Vh[TF + i]) * ic
+            P[MA + i] = w1 * m2ai - w2 * m1ai
+            P[MB + i] = w1 * m2bi - w2 * m1bi
+            P[SG + i] = (w1 * (m2ai + m2bi) - w2 * (m1ai + m1bi)) * ic       # Dv
+        Dv0, Dv1, Dv2 = P[SG], P[SG + 1], P[SG + 2]
+        P[A], P[A + 1], P[A + 2] = cross3(tf0, tf1, tf2, Dv0, Dv1, Dv2)
+        P[B], P[B + 1], P[B + 2] = cross3(te0, te1, te2, Dv0, Dv1, Dv2)
+        K = w1 * k1 + w2 * k2
+        for i in range(3):
+            tti, tei, tfi, Ai, Bi = P[TT + i], Vh[TE + i], Vh[TF + i], P[A + i], P[B + i]
+            kbi, Mai, Mbi = Vh[KB + i], P[MA + i], P[MB + i]
             for j in range(3):
-                ttj = tt0 if j == 0 else (tt1 if j == 1 else tt2)
-                tej = te0 if j == 0 else (te1 if j == 1 else te2)
-                tfj = tf0 if j == 0 else (tf1 if j == 1 else tf2)
-                Aj = A0 if j == 0 else (A1 if j == 1 else A2)
-                Bj = B0 if j == 0 else (B1 if j == 1 else B2)
-                kbj = kb0 if j == 0 else (kb1 if j == 1 else kb2)
-                Maj = w1 * Vh[3, j] - w2 * Vh[2, j]
-                Mbj = w1 * Vh[5, j] - w2 * Vh[4, j]
+                ttj, tej, tfj, Aj, Bj = P[TT + j], Vh[TE + j], Vh[TF + j], P[A + j], P[B + j]
+                kbj, Maj, Mbj = Vh[KB + j], P[MA + j], P[MB + j]
                 dij = 1.0 if i == j else 0.0
                 Kttt = 2.0 * K * tti * ttj
-                See[i, j] = ine * ine * (Kttt - (Ai * ttj + tti * Aj) - K * ic * (dij - tei * tej)
-                                         + 0.25 * (kbi * Maj + Mai * kbj)
-                                         - 0.25 * wt * (kbi * (tej + ttj) + (tei + tti) * kbj))
-                Sff[i, j] = inf * inf * (Kttt + (Bi * ttj + tti * Bj) - K * ic * (dij - tfi * tfj)
-                                         + 0.25 * (kbi * Mbj + Mbi * kbj)
-                                         - 0.25 * wt * (kbi * (tfj + ttj) + (tfi + tti) * kbj))
-                Sef[i, j] = ine * inf * (-K * ic * (dij + tei * tfj) + Kttt - Ai * ttj + tti * Bj
-                                         - _skew(Dv0, Dv1, Dv2, i, j)
-                                         + wt * (ic * _skew(te0, te1, te2, i, j) - 0.5 * kbi * ttj))
+                See[3 * i + j] = ine * ine * (Kttt - (Ai * ttj + tti * Aj) - K * ic * (dij - tei * tej)
+                                              + 0.25 * (kbi * Maj + Mai * kbj)
+                                              - 0.25 * wt * (kbi * (tej + ttj) + (tei + tti) * kbj))
+                Sff[3 * i + j] = inf * inf * (Kttt + (Bi * ttj + tti * Bj) - K * ic * (dij - tfi * tfj)
+                                              + 0.25 * (kbi * Mbj + Mbi * kbj)
+                                              - 0.25 * wt * (kbi * (tfj + ttj) + (tfi + tti) * kbj))
+                Sef[3 * i + j] = ine * inf * (-K * ic * (dij + tei * tfj) + Kttt - Ai * ttj + tti * Bj
+                                              - _skew(Dv0, Dv1, Dv2, i, j)
+                                              + wt * (ic * _skew(te0, te1, te2, i, j) - 0.5 * kbi * ttj))
         for i in range(3):
             for j in range(3):
-                see, sff, sef, sfe = See[i, j], Sff[i, j], Sef[i, j], Sef[j, i]
-                Hh[i, j] = see
-                Hh[i, 3 + j] = -see + sef
-                Hh[i, 6 + j] = -sef
-                Hh[3 + i, 3 + j] = see - sef - sfe + sff
-                Hh[3 + i, 6 + j] = sef - sff
-                Hh[6 + i, 6 + j] = sff
-                Hh[3 + j, i] = Hh[i, 3 + j]
-                Hh[6 + j, i] = Hh[i, 6 + j]
-                Hh[6 + j, 3 + i] = Hh[3 + i, 6 + j]
+                see, sff, sef, sfe = See[3 * i + j], Sff[3 * i + j], Sef[3 * i + j], Sef[3 * j + i]
+                a_b = -see + sef
+                a_c = -sef
+                b_c = sef - sff
+                Hh[11 * i + j] = see
+                Hh[11 * i + 3 + j] = a_b
+                Hh[11 * i + 6 + j] = a_c
+                Hh[11 * (3 + i) + 3 + j] = see - sef - sfe + sff
+                Hh[11 * (3 + i) + 6 + j] = b_c
+                Hh[11 * (6 + i) + 6 + j] = sff
+                Hh[11 * (3 + j) + i] = a_b
+                Hh[11 * (6 + j) + i] = a_c
+                Hh[11 * (6 + j) + 3 + i] = b_c
         # position-theta: theta_a turns (m1a, m2a), theta_b (m1b, m2b)
+        kb0, kb1, kb2 = Vh[KB], Vh[KB + 1], Vh[KB + 2]
         for jj in range(2):
-            r1 = 2 + 2 * jj
-            kbm1 = kb0 * Vh[r1, 0] + kb1 * Vh[r1, 1] + kb2 * Vh[r1, 2]
-            kbm2 = kb0 * Vh[r1 + 1, 0] + kb1 * Vh[r1 + 1, 1] + kb2 * Vh[r1 + 1, 2]
+            r1 = M1A + 6 * jj
+            r2 = r1 + 3
+            kbm1 = kb0 * Vh[r1] + kb1 * Vh[r1 + 1] + kb2 * Vh[r1 + 2]
+            kbm2 = kb0 * Vh[r2] + kb1 * Vh[r2 + 1] + kb2 * Vh[r2 + 2]
             s_ = 0.5 * (w1 * kbm1 + w2 * kbm2)
-            wm0 = w1 * Vh[r1, 0] + w2 * Vh[r1 + 1, 0]
-            wm1 = w1 * Vh[r1, 1] + w2 * Vh[r1 + 1, 1]
-            wm2 = w1 * Vh[r1, 2] + w2 * Vh[r1 + 1, 2]
-            f0, f1, f2 = cross3(tf0, tf1, tf2, wm0, wm1, wm2)
-            g0, g1, g2 = cross3(te0, te1, te2, wm0, wm1, wm2)
+            wm0 = w1 * Vh[r1] + w2 * Vh[r2]
+            wm1 = w1 * Vh[r1 + 1] + w2 * Vh[r2 + 1]
+            wm2 = w1 * Vh[r1 + 2] + w2 * Vh[r2 + 2]
+            P[A], P[A + 1], P[A + 2] = cross3(tf0, tf1, tf2, wm0, wm1, wm2)
+            P[B], P[B + 1], P[B + 2] = cross3(te0, te1, te2, wm0, wm1, wm2)
             for i in range(3):
-                tti = tt0 if i == 0 else (tt1 if i == 1 else tt2)
-                fi = f0 if i == 0 else (f1 if i == 1 else f2)
-                gi = g0 if i == 0 else (g1 if i == 1 else g2)
-                se = ine * (s_ * tti - ic * fi)
-                sf = inf * (s_ * tti + ic * gi)
-                Hh[i, 9 + jj] = -se
-                Hh[3 + i, 9 + jj] = se - sf
-                Hh[6 + i, 9 + jj] = sf
-                Hh[9 + jj, i] = -se
-                Hh[9 + jj, 3 + i] = se - sf
-                Hh[9 + jj, 6 + i] = sf
+                se = ine * (s_ * P[TT + i] - ic * P[A + i])
+                sf = inf * (s_ * P[TT + i] + ic * P[B + i])
+                Hh[11 * i + 9 + jj] = -se
+                Hh[11 * (3 + i) + 9 + jj] = se - sf
+                Hh[11 * (6 + i) + 9 + jj] = sf
+                Hh[11 * (9 + jj) + i] = -se
+                Hh[11 * (9 + jj) + 3 + i] = se - sf
+                Hh[11 * (9 + jj) + 6 + i] = sf
             # theta-theta: kappa is linear in m_a + m_b (no cross term), tau is linear in theta
-            Hh[9 + jj, 9 + jj] = 0.5 * (w2 * kbm1 - w1 * kbm2)
-        Hh[9, 10] = 0.0
-        Hh[10, 9] = 0.0
+            Hh[12 * (9 + jj)] = 0.5 * (w2 * kbm1 - w1 * kbm2)
+        Hh[11 * 9 + 10] = 0.0
+        Hh[11 * 10 + 9] = 0.0
         # plus the Gauss-Newton part; then the signs of reversed edges' twist DOFs
         kb_, kt_ = k_bend[h], k_twist[h]
         sa, sb = sign[h, 0], sign[h, 1]
         for i in range(11):
             si = sa if i == 9 else (sb if i == 10 else 1.0)
+            g0i, g1i, g2i = Gh[i], Gh[11 + i], Gh[22 + i]
             for j in range(11):
                 sj = sa if j == 9 else (sb if j == 10 else 1.0)
-                Hh[i, j] = (Hh[i, j] + kb_ * (Gh[0, i] * Gh[0, j] + Gh[1, i] * Gh[1, j])
-                            + kt_ * Gh[2, i] * Gh[2, j]) * si * sj
+                Hh[11 * i + j] = (Hh[11 * i + j] + kb_ * (g0i * Gh[j] + g1i * Gh[11 + j])
+                                  + kt_ * g2i * Gh[22 + j]) * si * sj
 
 
-@njit(cache=True)
+@stage
 def _connection(t0, t1, t2, c0, c1, c2, le):
     """dOmega/de = -(t_c x t) / ((1 + t_c . t) l): the spin of the transported reference frame per change of the
     edge vector e (see _edge_holonomy). Returns (g0, g1, g2, c) with c = t_c . t."""
@@ -308,7 +330,7 @@ def _connection(t0, t1, t2, c0, c1, c2, le):
     return f * w0, f * w1, f * w2, c
 
 
-@njit(cache=True)
+@kernel
 def tangent_torque(t, tc, length, edge, tq, dtq, x_dofs, r, J, s_xx, s_xth, want_jacobian):
     """The nodal force of a torque -tq about an edge's tangent, and its Jacobian.
 
@@ -321,42 +343,48 @@ def tangent_torque(t, tc, length, edge, tq, dtq, x_dofs, r, J, s_xx, s_xth, want
     c0, c1, c2 = tc[edge, 0], tc[edge, 1], tc[edge, 2]
     le = length[edge]
     g0, g1, g2, c = _connection(t0, t1, t2, c0, c1, c2, le)
-    g = (g0, g1, g2)
-    for i in range(3):
-        r[x_dofs[i]] -= tq * g[i]
-        r[x_dofs[3 + i]] += tq * g[i]
+    a_, b_ = x_dofs[:3], x_dofs[3:]
+    r[a_[0]] -= tq * g0
+    r[a_[1]] -= tq * g1
+    r[a_[2]] -= tq * g2
+    r[b_[0]] += tq * g0
+    r[b_[1]] += tq * g1
+    r[b_[2]] += tq * g2
     if not want_jacobian:
         return
-    tv = (t0, t1, t2)
-    cv = (c0, c1, c2)
-    w = cross3(c0, c1, c2, t0, t1, t2)
+    # the vectors g, t, t_c, w = t_c x t by row (a tuple indexed by a loop variable compiles to a switch at
+    # every use)
+    V = np.empty(12)
+    V[0], V[1], V[2] = g0, g1, g2
+    V[3], V[4], V[5] = t0, t1, t2
+    V[6], V[7], V[8] = c0, c1, c2
+    V[9], V[10], V[11] = cross3(c0, c1, c2, t0, t1, t2)
     a = 1.0 / ((1.0 + c) * le)
-    b = 1.0 / ((1.0 + c) ** 2 * le)
-    # df/dt = -a [t_c]x + b w t_c^T
-    F = np.empty((3, 3))
-    F[0, 0], F[0, 1], F[0, 2] = 0.0, a * c2, -a * c1
-    F[1, 0], F[1, 1], F[1, 2] = -a * c2, 0.0, a * c0
-    F[2, 0], F[2, 1], F[2, 2] = a * c1, -a * c0, 0.0
+    b = 1.0 / (((1.0 + c) * (1.0 + c)) * le)
+    # df/dt = -a [t_c]x + b w t_c^T, row-major
+    F = np.empty(9)
+    F[0], F[1], F[2] = 0.0, a * c2, -a * c1
+    F[3], F[4], F[5] = -a * c2, 0.0, a * c0
+    F[6], F[7], F[8] = a * c1, -a * c0, 0.0
     for i in range(3):
         for j in range(3):
-            F[i, j] += b * w[i] * cv[j]
-    D = np.empty((3, 3))
+            F[3 * i + j] += b * V[9 + i] * V[6 + j]
     for i in range(3):
-        Ft = F[i, 0] * t0 + F[i, 1] * t1 + F[i, 2] * t2
+        Fi0, Fi1, Fi2 = F[3 * i], F[3 * i + 1], F[3 * i + 2]
+        Ft = Fi0 * t0 + Fi1 * t1 + Fi2 * t2
+        gi = V[i]
         for j in range(3):
-            D[i, j] = ((F[i, j] - Ft * tv[j]) - g[i] * tv[j]) / le
-    for i in range(3):
-        for j in range(3):
-            v = tq * D[i, j]
+            tj = V[3 + j]
+            v = tq * (((F[3 * i + j] - Ft * tj) - gi * tj) / le)
             J[s_xx[6 * i + j]] += v              # (tail, tail)
             J[s_xx[6 * i + 3 + j]] -= v          # (tail, head)
             J[s_xx[6 * (3 + i) + j]] -= v        # (head, tail)
             J[s_xx[6 * (3 + i) + 3 + j]] += v    # (head, head)
-        J[s_xth[i]] -= dtq * g[i]
-        J[s_xth[3 + i]] += dtq * g[i]
+        J[s_xth[i]] -= dtq * gi
+        J[s_xth[3 + i]] += dtq * gi
 
 
-@njit(cache=True)
+@stage
 def _edge_holonomy(t, tc, length, g, Hh, want_hessian):
     """Per edge: dOmega/de (3) and d2Omega/de2 (3x3) of the holonomy spin Omega.
 
@@ -370,6 +398,7 @@ def _edge_holonomy(t, tc, length, g, Hh, want_hessian):
     only at the committed state) and the Hessian its exact Jacobian, which keeps Newton quadratic when parts of
     the robot turn quickly.
     """
+    T = np.empty(12)             # w, u, t, l g: the vectors of the formula, by row
     for k in range(t.shape[0]):
         t0, t1, t2 = t[k, 0], t[k, 1], t[k, 2]
         c0, c1, c2 = tc[k, 0], tc[k, 1], tc[k, 2]
@@ -378,93 +407,97 @@ def _edge_holonomy(t, tc, length, g, Hh, want_hessian):
         g[k, 0], g[k, 1], g[k, 2] = g0, g1, g2
         if not want_hessian:
             continue
-        w0, w1, w2 = cross3(c0, c1, c2, t0, t1, t2)
-        gt0, gt1, gt2 = g0 * le, g1 * le, g2 * le
-        s = 1.0 / (2.0 * (1.0 + c) ** 2)
+        T[0], T[1], T[2] = cross3(c0, c1, c2, t0, t1, t2)
+        T[3], T[4], T[5] = c0 - c * t0, c1 - c * t1, c2 - c * t2
+        T[6], T[7], T[8] = t0, t1, t2
+        T[9], T[10], T[11] = g0 * le, g1 * le, g2 * le
+        s = 1.0 / (2.0 * ((1.0 + c) * (1.0 + c)))
         il2 = 1.0 / (le * le)
+        hk = Hh[k]
         for i in range(3):
-            wi = w0 if i == 0 else (w1 if i == 1 else w2)
-            ui = (c0 if i == 0 else (c1 if i == 1 else c2)) - c * (t0 if i == 0 else (t1 if i == 1 else t2))
-            ti = t0 if i == 0 else (t1 if i == 1 else t2)
-            gi = gt0 if i == 0 else (gt1 if i == 1 else gt2)
+            wi, ui, ti, gi = T[i], T[3 + i], T[6 + i], T[9 + i]
             for j in range(3):
-                wj = w0 if j == 0 else (w1 if j == 1 else w2)
-                uj = (c0 if j == 0 else (c1 if j == 1 else c2)) - c * (t0 if j == 0 else (t1 if j == 1 else t2))
-                tj = t0 if j == 0 else (t1 if j == 1 else t2)
-                gj = gt0 if j == 0 else (gt1 if j == 1 else gt2)
-                Hh[k, i, j] = (s * (wi * uj + ui * wj) - (ti * gj + gi * tj)) * il2
+                hk[3 * i + j] = (s * (wi * T[3 + j] + ui * T[j]) - (ti * T[9 + j] + gi * T[6 + j])) * il2
 
 
-@njit(cache=True)
+@stage
 def _change_variables(grad, Hs, edges, sign, hg, hh, want_hessian):
     """Apply y_theta = theta + Omega(x) to every hinge: g <- g + g_theta dOmega/dx and
     H <- T^T H T + sum_k g_theta_k d2Omega_k, with dOmega of the hinge's two edges in its local DOFs (edge a
     joins local nodes 0-1, edge b nodes 1-2; a reversed edge flips the sign)."""
-    Vh = np.zeros((2, 11))
-    Ht = np.empty((2, 11))
+    Vh = np.empty(22)            # dOmega of edge a (0:11) and of edge b (11:22) in the local DOFs
+    for m in range(22):          # (np.zeros would compile two more functions)
+        Vh[m] = 0.0
+    Ht = np.empty(22)            # rows 9 and 10 of the hinge's Hessian before the change
     for h in range(grad.shape[0]):
         ea, eb = edges[h, 0], edges[h, 1]
         sa, sb = sign[h, 0], sign[h, 1]
         for i in range(3):
-            Vh[0, i], Vh[0, 3 + i] = -sa * hg[ea, i], sa * hg[ea, i]
-            Vh[1, 3 + i], Vh[1, 6 + i] = -sb * hg[eb, i], sb * hg[eb, i]
-        gA, gB = grad[h, 9], grad[h, 10]
+            ga, gb = hg[ea, i], hg[eb, i]
+            Vh[i], Vh[3 + i] = -sa * ga, sa * ga
+            Vh[14 + i], Vh[17 + i] = -sb * gb, sb * gb
+        gh = grad[h]
+        gA, gB = gh[9], gh[10]
         if want_hessian:
             H = Hs[h]
-            h99, h9a, ha9, haa = H[9, 9], H[9, 10], H[10, 9], H[10, 10]
+            h99, h9a, ha9, haa = H[108], H[109], H[119], H[120]
             for j in range(11):
-                Ht[0, j] = H[9, j]
-                Ht[1, j] = H[10, j]
+                Ht[j] = H[99 + j]
+                Ht[11 + j] = H[110 + j]
             for i in range(11):
+                v0i, v1i, t0i, t1i = Vh[i], Vh[11 + i], Ht[i], Ht[11 + i]
                 for j in range(11):
-                    H[i, j] += (Vh[0, i] * Ht[0, j] + Vh[1, i] * Ht[1, j] + Ht[0, i] * Vh[0, j]
-                                + Ht[1, i] * Vh[1, j] + Vh[0, i] * (h99 * Vh[0, j] + h9a * Vh[1, j])
-                                + Vh[1, i] * (ha9 * Vh[0, j] + haa * Vh[1, j]))
+                    v0j, v1j = Vh[j], Vh[11 + j]
+                    H[11 * i + j] += (v0i * Ht[j] + v1i * Ht[11 + j] + t0i * v0j
+                                      + t1i * v1j + v0i * (h99 * v0j + h9a * v1j)
+                                      + v1i * (ha9 * v0j + haa * v1j))
             # an edge's block [[B, -B], [-B, B]] is unchanged by swapping its ends: the sign does not enter
             for i in range(3):
                 for j in range(3):
-                    hA = gA * hh[ea, i, j]
-                    hB = gB * hh[eb, i, j]
-                    H[i, j] += hA
-                    H[3 + i, 3 + j] += hA + hB
-                    H[i, 3 + j] -= hA
-                    H[3 + i, j] -= hA
-                    H[6 + i, 6 + j] += hB
-                    H[3 + i, 6 + j] -= hB
-                    H[6 + i, 3 + j] -= hB
+                    hA = gA * hh[ea, 3 * i + j]
+                    hB = gB * hh[eb, 3 * i + j]
+                    H[11 * i + j] += hA
+                    H[11 * (3 + i) + 3 + j] += hA + hB
+                    H[11 * i + 3 + j] -= hA
+                    H[11 * (3 + i) + j] -= hA
+                    H[11 * (6 + i) + 6 + j] += hB
+                    H[11 * (3 + i) + 6 + j] -= hB
+                    H[11 * (6 + i) + 3 + j] -= hB
         for j in range(9):
-            grad[h, j] += gA * Vh[0, j] + gB * Vh[1, j]
+            gh[j] += gA * Vh[j] + gB * Vh[11 + j]
 
 
-@njit(cache=True)
+@stage
 def _scatter(dofs, slots, grad, Hs, r, J, want_hessian):
-    """Every hinge's gradient into the residual r and its Hessian into the CSC data array J."""
+    """Every hinge's gradient into the residual r and its Hessian into the CSC data array J (``slots`` (H,
+    121): the hinge's 11 x 11 block, row-major)."""
     for h in range(grad.shape[0]):
+        dh, gh = dofs[h], grad[h]
         for j in range(11):
-            r[dofs[h, j]] += grad[h, j]
+            r[dh[j]] += gh[j]
         if want_hessian:
-            for i in range(11):
-                for j in range(11):
-                    J[slots[h, i, j]] += Hs[h, i, j]
+            sh, Hh = slots[h], Hs[h]
+            for m in range(121):
+                J[sh[m]] += Hh[m]
 
 
-@njit(cache=True)
+@kernel
 def _bend_twist(x, theta, t, tc, length, d1, d2, rt, nodes, edges, sign, beta, kappa_bar, tau_bar, k_bend,
-                k_twist, dofs, slots, twist_hinge, twist_offset, r, J, want_hessian):
+                k_twist, dofs, slots, twist_hinge, twist_offset, S, r, J, want_hessian):
     """Bend + twist forces of every hinge into r (and their Hessian into J): the stages in order.
 
     Arguments: positions and twist angles; the trial frames (t, t_committed, length, d1, d2, reference twist);
     the springs (nodes, edges, sign, beta, rest curvature and twist, stiffnesses, local DOFs and CSC slots); the
-    motor's natural-twist offset; the outputs."""
+    motor's natural-twist offset; the outputs: S (H, 6) each hinge's lengths and strains (see _hinge_geometry:
+    what ElasticModel.hinge_strains reads), r, J."""
     H, Ne = nodes.shape[0], t.shape[0]
-    V = np.empty((H, 7, 3))
-    S = np.empty((H, 6))
+    V = np.empty((H, 21))
     W = np.empty((H, 3))
-    G = np.empty((H, 3, 11))
+    G = np.empty((H, 33))
     grad = np.empty((H, 11))
-    Hs = np.empty((H, 11, 11)) if want_hessian else np.empty((0, 11, 11))
+    Hs = np.empty((H, 121)) if want_hessian else np.empty((0, 121))
     hg = np.empty((Ne, 3))
-    hh = np.empty((Ne, 3, 3)) if want_hessian else np.empty((0, 3, 3))
+    hh = np.empty((Ne, 9)) if want_hessian else np.empty((0, 9))
     _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S)
     _hinge_weights(S, kappa_bar, tau_bar, twist_hinge, twist_offset, k_bend, k_twist, W)
     _strain_gradients(V, S, G)
@@ -476,21 +509,11 @@ def _bend_twist(x, theta, t, tc, length, d1, d2, rt, nodes, edges, sign, beta, k
     _scatter(dofs, slots, grad, Hs, r, J, want_hessian)
 
 
-@njit(cache=True)
-def _hinge_strains(x, theta, d1, d2, rt, nodes, edges, sign, beta, k1s, k2s, taus):
-    H = nodes.shape[0]
-    V = np.empty((H, 7, 3))
-    S = np.empty((H, 6))
-    _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S)
-    for h in range(H):
-        k1s[h], k2s[h], taus[h] = S[h, 3], S[h, 4], S[h, 5]
-
-
-@njit(cache=True)
+@kernel
 def _bend_twist_energy(x, theta, d1, d2, rt, nodes, edges, sign, beta, kappa_bar, tau_bar, k_bend, k_twist,
                        twist_hinge, twist_offset):
     H = nodes.shape[0]
-    V = np.empty((H, 7, 3))
+    V = np.empty((H, 21))
     S = np.empty((H, 6))
     _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S)
     return _hinge_energy(S, kappa_bar, tau_bar, twist_hinge, twist_offset, k_bend, k_twist)
@@ -525,8 +548,9 @@ class ElasticModel:
         self.sign = net.hinge_sign
         self.k_bend = net.EI / net.voronoi
         self.k_twist = net.GJ / net.voronoi
-        self.stretch_slots = np.zeros((net.n_edges, 6, 6), np.int64)
-        self.hinge_slots = np.zeros((net.n_hinges, 11, 11), np.int64)
+        self.stretch_slots = np.zeros((net.n_edges, 36), np.int64)
+        self.hinge_slots = np.zeros((net.n_hinges, 121), np.int64)
+        self._strains = np.empty((net.n_hinges, 6))           # _bend_twist's per-hinge strains, a work array
         # rest strains from the undeformed configuration with theta = 0
         q0 = net.initial_q()
         x0 = self.positions(q0)
@@ -554,18 +578,18 @@ class ElasticModel:
 
     def set_slots(self, stretch_slots: np.ndarray, hinge_slots: np.ndarray) -> None:
         """Positions in the CSC data array of every stretch (6x6) and hinge (11x11) Jacobian entry."""
-        self.stretch_slots = np.ascontiguousarray(stretch_slots.reshape(-1, 6, 6))
-        self.hinge_slots = np.ascontiguousarray(hinge_slots.reshape(-1, 11, 11))
+        self.stretch_slots = np.ascontiguousarray(stretch_slots.reshape(-1, 36))
+        self.hinge_slots = np.ascontiguousarray(hinge_slots.reshape(-1, 121))
 
     # ------------------------------------------------------------------ strains and energy
     def hinge_strains(self, q: np.ndarray, fr: TrialFrames):
-        """(kappa1, kappa2, tau) of every hinge; tau without the natural twist."""
-        H = self.net.n_hinges
-        k1, k2, tau = np.empty(H), np.empty(H), np.empty(H)
-        net = self.net
-        _hinge_strains(self.positions(q), q[3 * self.n_nodes:], fr.d1, fr.d2, fr.ref_twist, net.hinge_nodes,
-                       net.hinge_edges, self.sign, self.beta, k1, k2, tau)
-        return k1, k2, tau
+        """(kappa1, kappa2, tau) of every hinge; tau without the natural twist.
+
+        Read from the springs' own evaluation (its gradient discarded): a kernel of its own for the strains alone
+        cost a first run ~0.2 s of compiling, for a model's start and the motor torque of each snapshot."""
+        S = np.empty((self.net.n_hinges, 6))
+        self._bend_twist(q, fr, S, np.zeros(self.ndof), None)
+        return S[:, 3].copy(), S[:, 4].copy(), S[:, 5].copy()
 
     def stretch_strain(self, fr: TrialFrames) -> np.ndarray:
         return fr.length / self.net.edge_rest_length - 1.0
@@ -582,10 +606,16 @@ class ElasticModel:
                    twist_hinge: int = -1, twist_offset: float = 0.0) -> None:
         """Add the elastic gradient to r and, if J (CSC data array) is given, the Hessian to J."""
         want = J is not None
-        d = J if want else np.empty(0)
         net = self.net
-        _stretch(fr.t, fr.length, net.edge_rest_length, net.EA, self.stretch_dofs, self.stretch_slots, r, d, want)
+        _stretch(fr.t, fr.length, net.edge_rest_length, net.EA, self.stretch_dofs, self.stretch_slots, r,
+                 J if want else np.empty(0), want)
+        self._bend_twist(q, fr, self._strains, r, J, twist_hinge, twist_offset)
+
+    def _bend_twist(self, q, fr: TrialFrames, S: np.ndarray, r: np.ndarray, J: np.ndarray | None,
+                    twist_hinge: int = -1, twist_offset: float = 0.0) -> None:
+        want = J is not None
+        net = self.net
         _bend_twist(self.positions(q), q[3 * self.n_nodes:], fr.t, fr.t_committed, fr.length, fr.d1, fr.d2,
                     fr.ref_twist, net.hinge_nodes, net.hinge_edges, self.sign, self.beta, self.kappa_bar,
                     self.tau_bar, self.k_bend, self.k_twist, self.hinge_dofs, self.hinge_slots, twist_hinge,
-                    twist_offset, r, d, want)
+                    twist_offset, S, r, J if want else np.empty(0), want)

@@ -12,7 +12,8 @@ because the robot turns its parts through many revolutions.
 
 The scalar helpers (``cross3``, ``transport3``, ``angle3``) are the single implementation of each formula; the
 array functions below loop over them and are what the rest of the package calls (hot path and observation
-alike). ``NUMBA_DISABLE_JIT=1`` runs the same code as plain Python for debugging.
+alike). ``NUMBA_DISABLE_JIT=1`` runs the same code as plain Python for debugging. ``material3`` and
+``unit_rows`` are plain Python / numpy: nothing compiled calls them.
 """
 from __future__ import annotations
 
@@ -20,16 +21,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from .jit import kernel, stage
 
 
 # ------------------------------------------------------------------------------------------- scalar formulas
-@njit(cache=True)
+@stage
 def cross3(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True)
+@stage
 def transport3(c0, c1, c2, t0, t1, t2, u0, u1, u2):
     """Rotate u by the minimal rotation taking unit vector c to unit vector t.
 
@@ -43,29 +45,32 @@ def transport3(c0, c1, c2, t0, t1, t2, u0, u1, u2):
     return c * u0 + w0 + b0 * bu, c * u1 + w1 + b1 * bu, c * u2 + w2 + b2 * bu
 
 
-@njit(cache=True)
+@kernel
 def angle3(u0, u1, u2, v0, v1, v2, a0, a1, a2):
     """Signed angle from u to v about the axis a (right-handed), in (-pi, pi]."""
     x0, x1, x2 = cross3(u0, u1, u2, v0, v1, v2)
     return math.atan2(x0 * a0 + x1 * a1 + x2 * a2, u0 * v0 + u1 * v1 + u2 * v2)
 
 
-@njit(cache=True)
 def material3(d10, d11, d12, d20, d21, d22, theta):
-    """Material directors (m1, m2) of a reference frame (d1, d2) turned by the twist angle theta."""
+    """Material directors (m1, m2) of a reference frame (d1, d2) turned by the twist angle theta.
+
+    Plain Python: only the observer calls it, once per snapshot (compiled, its first call cost ~0.25 s of
+    compiling for nothing measurable per call)."""
     c, s = math.cos(theta), math.sin(theta)
     return (c * d10 + s * d20, c * d11 + s * d21, c * d12 + s * d22,
             -s * d10 + c * d20, -s * d11 + c * d21, -s * d12 + c * d22)
 
 
-@njit(cache=True)
+@stage
 def unwrap(angle, reference):
     """``angle`` plus the multiple of 2 pi that brings it closest to ``reference``."""
-    return angle + 2.0 * math.pi * np.round((reference - angle) / (2.0 * math.pi))
+    # np.rint is np.round to 0 decimals (both llvm.rint, half to even); np.round compiles its decimals branch too
+    return angle + 2.0 * math.pi * np.rint((reference - angle) / (2.0 * math.pi))
 
 
 # ------------------------------------------------------------------------------------------- row-wise forms
-@njit(cache=True)
+@kernel
 def parallel_transport(u, t1, t2):
     """Row-wise :func:`transport3`: u (n, 3) carried from unit tangents t1 to t2."""
     out = np.empty_like(u)
@@ -75,7 +80,7 @@ def parallel_transport(u, t1, t2):
     return out
 
 
-@njit(cache=True)
+@kernel
 def signed_angle(u, v, axis):
     """Row-wise :func:`angle3`."""
     out = np.empty(u.shape[0])
@@ -84,19 +89,16 @@ def signed_angle(u, v, axis):
     return out
 
 
-@njit(cache=True)
 def unit_rows(v):
-    """(v / |v|, |v|) row-wise."""
-    out = np.empty_like(v)
-    n = np.empty(v.shape[0])
-    for k in range(v.shape[0]):
-        nk = math.sqrt(v[k, 0] ** 2 + v[k, 1] ** 2 + v[k, 2] ** 2)
-        n[k] = nk
-        out[k, 0], out[k, 1], out[k, 2] = v[k, 0] / nk, v[k, 1] / nk, v[k, 2] / nk
-    return out, n
+    """(v / |v|, |v|) row-wise.
+
+    numpy, not compiled: a model calls it once, the clamp on a few rows per step (compiled, it cost ~0.4 s of a
+    first run's compiling); the same operations in the same order as the compiled loop it replaced."""
+    n = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
+    return v / n[:, None], n
 
 
-@njit(cache=True)
+@kernel
 def twist_for_director(d1c, tc, t_new, m_target, theta_old):
     """Twist angles that make each edge's material director m1 equal ``m_target``, given reference frames
     carried from (d1c, tc) to the unit tangents t_new by time-parallel transport; each continuous with
@@ -111,7 +113,7 @@ def twist_for_director(d1c, tc, t_new, m_target, theta_old):
 
 
 # ------------------------------------------------------------------------------------------- trial frames
-@njit(cache=True)
+@kernel
 def _trial_frames(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt):
     for k in range(edges.shape[0]):
         a, b = edges[k, 0], edges[k, 1]

@@ -22,10 +22,11 @@ from __future__ import annotations
 import llvmlite.binding as llvm
 import numpy as np
 import scipy.sparse.linalg as spla
-from numba import njit, types
+from numba import types
 from numba.extending import get_cython_function_address
 
 from .assembly import SparsePattern
+from .jit import kernel, stage
 
 
 class SingularJacobian(RuntimeError):
@@ -33,14 +34,18 @@ class SingularJacobian(RuntimeError):
 
 
 def _lapack(name: str, nargs: int):
-    """A LAPACK routine of scipy's, callable from compiled code, every argument a pointer (Fortran ABI).
+    """A LAPACK routine of scipy's, callable from compiled code, every argument passed by reference (Fortran ABI).
 
     Bound by symbol name (registered with LLVM in every process), not by address, so the compiled callers can
-    be cached on disk like every other kernel.
+    be cached on disk like every other kernel. Each reference is passed as an address in an int64, which the
+    64-bit calling conventions pass exactly as a pointer: the callers form it as an array's base address plus a
+    byte offset, where an array slice and its ``.ctypes`` compile to ~100 lines of code each (docs/startup.md).
+    Every array whose address is passed must stay referenced until the call returns: the work arrays are the
+    callers' arguments.
     """
     symbol = f"flagbot_{name}"
     llvm.add_symbol(symbol, get_cython_function_address("scipy.linalg.cython_lapack", name))
-    return types.ExternalFunction(symbol, types.void(*([types.voidptr] * nargs)))
+    return types.ExternalFunction(symbol, types.void(*([types.int64] * nargs)))
 
 
 _dgbtrf = _lapack("dgbtrf", 8)     # m n kl ku ab ldab ipiv info
@@ -48,41 +53,52 @@ _dgbtrs = _lapack("dgbtrs", 11)    # trans n kl ku nrhs ab ldab ipiv b ldb info
 _dgetrf = _lapack("dgetrf", 6)     # m n a lda ipiv info
 _dgetrs = _lapack("dgetrs", 9)     # trans n nrhs a lda ipiv b ldb info
 
+#: LAPACK's integer arguments live in a work array of int32 (``iw``, 8 entries, 4 bytes apart): byte offsets
+I0, I1, I2, I3, I4, INFO, I6, TRANS = 0, 4, 8, 12, 16, 20, 24, 28
 
-@njit(cache=True)
-def _band_factor(buf, off, ldab, m, kl, ku, ipiv, iw):
-    """dgbtrf on the Fortran-ordered band matrix buf[off: off + ldab m]; returns LAPACK's info."""
+
+@stage
+def _address(a):
+    """The address of an array's first element, as an int64."""
+    return np.int64(a.ctypes.data)
+
+
+@stage
+def _band_factor(buf, off, ldab, m, kl, ku, ipiv, piv_off, iw):
+    """dgbtrf on the Fortran-ordered band matrix buf[off: off + ldab m], pivots into ipiv[piv_off:]; returns
+    LAPACK's info."""
     iw[0], iw[1], iw[2], iw[3], iw[4] = m, m, kl, ku, ldab
-    _dgbtrf(iw[0:].ctypes, iw[1:].ctypes, iw[2:].ctypes, iw[3:].ctypes, buf[off:].ctypes, iw[4:].ctypes,
-            ipiv.ctypes, iw[5:].ctypes)
+    w = _address(iw)
+    _dgbtrf(w + I0, w + I1, w + I2, w + I3, _address(buf) + 8 * off, w + I4, _address(ipiv) + 4 * piv_off,
+            w + INFO)
     return iw[5]
 
 
-@njit(cache=True)
-def _band_solve(buf, off, ldab, m, kl, ku, ipiv, rhs, rhs_off, nrhs, iw):
+@stage
+def _band_solve(buf, off, ldab, m, kl, ku, ipiv, piv_off, rhs, rhs_off, nrhs, iw):
     """dgbtrs: overwrite the Fortran-ordered (m, nrhs) block rhs[rhs_off:] with A^-1 rhs."""
     iw[0], iw[1], iw[2], iw[3], iw[4], iw[6] = m, kl, ku, nrhs, ldab, m
-    trans = np.empty(1, np.uint8)
-    trans[0] = 78                 # "N"
-    _dgbtrs(trans.ctypes, iw[0:].ctypes, iw[1:].ctypes, iw[2:].ctypes, iw[3:].ctypes, buf[off:].ctypes,
-            iw[4:].ctypes, ipiv.ctypes, rhs[rhs_off:].ctypes, iw[6:].ctypes, iw[5:].ctypes)
+    iw[7] = 78                    # "N" (the first byte of the int32)
+    w = _address(iw)
+    _dgbtrs(w + TRANS, w + I0, w + I1, w + I2, w + I3, _address(buf) + 8 * off, w + I4,
+            _address(ipiv) + 4 * piv_off, _address(rhs) + 8 * rhs_off, w + I6, w + INFO)
 
 
-@njit(cache=True)
+@kernel
 def _arrow_factor(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc, cr_ptr, cr, D_off,
-                  nc, ipiv, piv_ptr, Y, Y_off, core_piv):
-    """Factor every chain block, form Y_i = A_i^-1 B_i, the Schur complement S = D - sum C_i Y_i and its LU.
+                  nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw):
+    """Factor every chain block, form Y_i = A_i^-1 B_i, the Schur complement S = D - sum C_i Y_i and its LU
+    (``iw``: LAPACK's int32 work array, 8 entries).
 
     Returns 0, i + 1 if chain block i is singular, or -1 if the Schur complement is."""
     for s in range(buf.shape[0]):
         buf[s] = 0.0
     for s in range(data.shape[0]):
         buf[dest[s]] = data[s]
-    iw = np.zeros(8, np.int32)
     for i in range(ab_off.shape[0]):
         m = ab_cols[i]
-        p = ipiv[piv_ptr[i]:piv_ptr[i] + m]
-        if _band_factor(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], p, iw) != 0:
+        p0 = piv_ptr[i]
+        if _band_factor(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, iw) != 0:
             return i + 1
         ncc = cc_ptr[i + 1] - cc_ptr[i]
         ncr = cr_ptr[i + 1] - cr_ptr[i]
@@ -90,7 +106,7 @@ def _arrow_factor(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_of
         for s in range(m * ncc):                                            # B_i, Fortran (m, ncc)
             Y[y0 + s] = buf[B_off[i] + s]
         if ncc:
-            _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], p, Y, y0, ncc, iw)
+            _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, Y, y0, ncc, iw)
         c0 = C_off[i]
         for a in range(ncr):
             row = cr[cr_ptr[i] + a]
@@ -102,27 +118,27 @@ def _arrow_factor(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_of
                 buf[D_off + row * nc + col] -= acc
     # S is stored row-major, which LAPACK reads as S^T: factor S^T, solve with 'T'
     iw[0], iw[1], iw[2] = nc, nc, nc
-    _dgetrf(iw[0:].ctypes, iw[1:].ctypes, buf[D_off:].ctypes, iw[2:].ctypes, core_piv.ctypes, iw[5:].ctypes)
+    w = _address(iw)
+    _dgetrf(w + I0, w + I1, _address(buf) + 8 * D_off, w + I2, _address(core_piv), w + INFO)
     if iw[5] != 0:
         return -1
     return 0
 
 
-@njit(cache=True)
+@kernel
 def _arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr,
-                 Y, Y_off, core_piv, chain_dofs, core_dofs, b, x):
-    """Solve J x = b with the factors of :func:`_arrow_factor`."""
-    iw = np.zeros(8, np.int32)
-    rhs = np.empty(nc)
+                 Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw):
+    """Solve J x = b with the factors of :func:`_arrow_factor` (``rhs`` (nc), ``z`` (chain DOFs), ``iw`` (8
+    int32): work arrays)."""
+    one = np.int64(1)             # one right-hand side (a literal 1 would compile _band_solve a second time)
     for k in range(nc):
         rhs[k] = b[core_dofs[k]]
-    z = np.empty(chain_dofs.shape[0])
     for i in range(ab_off.shape[0]):
         m = ab_cols[i]
         z0 = piv_ptr[i]
         for k in range(m):
             z[z0 + k] = b[chain_dofs[z0 + k]]
-        _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv[z0:z0 + m], z, z0, 1, iw)
+        _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, z0, z, z0, one, iw)
         c0 = C_off[i]
         for a in range(cr_ptr[i + 1] - cr_ptr[i]):
             acc = 0.0
@@ -130,10 +146,10 @@ def _arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_pt
                 acc += buf[c0 + a * m + rr] * z[z0 + rr]
             rhs[cr[cr_ptr[i] + a]] -= acc
     iw[0], iw[1], iw[2], iw[3] = nc, 1, nc, nc
-    trans = np.empty(1, np.uint8)
-    trans[0] = 84                 # "T"
-    _dgetrs(trans.ctypes, iw[0:].ctypes, iw[1:].ctypes, buf[D_off:].ctypes, iw[2:].ctypes, core_piv.ctypes,
-            rhs.ctypes, iw[3:].ctypes, iw[5:].ctypes)
+    iw[7] = 84                    # "T"
+    w = _address(iw)
+    _dgetrs(w + TRANS, w + I0, w + I1, _address(buf) + 8 * D_off, w + I2, _address(core_piv), _address(rhs),
+            w + I3, w + INFO)
     for k in range(nc):
         x[core_dofs[k]] = rhs[k]
     for i in range(ab_off.shape[0]):
@@ -244,12 +260,15 @@ class ArrowSolver:
         self._ipiv = np.zeros(self._piv_ptr[-1], np.int32)
         self._Y = np.zeros(self._Y_off[-1])
         self._core_piv = np.zeros(nc, np.int32)
+        self._iw = np.zeros(8, np.int32)            # LAPACK's integer arguments
+        self._rhs = np.empty(nc)                    # solve's work arrays
+        self._z = np.empty(len(self._chain_dofs))
 
     def factor(self, data: np.ndarray) -> None:
         k = self._k
         bad = _arrow_factor(data, self.dest, self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"],
                             self._B_off, k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"],
-                            self._ipiv, self._piv_ptr, self._Y, self._Y_off, self._core_piv)
+                            self._ipiv, self._piv_ptr, self._Y, self._Y_off, self._core_piv, self._iw)
         if bad > 0:
             raise SingularJacobian(f"flagellum block {bad - 1} is singular")
         if bad < 0:
@@ -260,7 +279,8 @@ class ArrowSolver:
         x = np.empty(self.ndof)
         _arrow_solve(self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
                      k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"], self._ipiv, self._piv_ptr, self._Y,
-                     self._Y_off, self._core_piv, self._chain_dofs, self._core, np.ascontiguousarray(b), x)
+                     self._Y_off, self._core_piv, self._chain_dofs, self._core, np.ascontiguousarray(b), x,
+                     self._rhs, self._z, self._iw)
         return x
 
 

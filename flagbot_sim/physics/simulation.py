@@ -27,8 +27,8 @@ class Simulation:
         """``steady_window`` / ``steady_rtol``: the steady-state rule's window (s) and tolerance (default: the
         scene's ``observe`` section; with error control, ``time.rtol`` > 0, at most time.rtol / 10, so that a run
         called steady has settled well inside the accuracy it asked for)."""
-        #: time spent compiling (first run) or loading the kernels in this process: not simulation time
-        self.compile_seconds = warmup.ensure_compiled()
+        #: time spent compiling (first run) or loading the kernels this scene uses: not simulation time
+        self.compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene))
         self.scene = scene
         self.model = RobotModel(scene)
         self.stepper = Stepper(self.model)

@@ -19,9 +19,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from .frames import EdgeFrames, cross3
+from .jit import kernel
 from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State, StepPlan
 
@@ -133,7 +133,7 @@ REUSE_DV_CHANGE = 0.15
 
 
 # ----------------------------------------------------------------------------------------------- predictor
-@njit(cache=True)
+@kernel
 def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
     """Second-order extrapolation of node positions in cylindrical coordinates about the robot axis (see
     :func:`predict`), from the positions x, xp, xpp at t_n, t_n - h1, t_n - h1 - h2. ``out`` holds the Cartesian
@@ -145,40 +145,49 @@ def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
     else:
         a0, a1, a2 = 1.0, 0.0, 0.0
     cn0, cn1, cn2 = out[i1, 0], out[i1, 1], out[i1, 2]          # the centre, predicted on the axis
-    C = np.empty((3, 3))                                        # the centre at the three times
+    # by time (now, one step back, two steps back), each a row of three: the centre C, the node P, its distance
+    # along the axis S, its radial vector R and that vector's length rn
+    C = np.empty(9)
     for i in range(3):
-        C[0, i] = x[i1, i]
-        C[1, i] = xp[i1, i]
-        C[2, i] = xpp[i1, i] if second else C[1, i]
-    P = np.empty((3, 3))
+        c_prev = xp[i1, i]
+        C[i] = x[i1, i]
+        C[3 + i] = c_prev
+        C[6 + i] = xpp[i1, i] if second else c_prev
+    P = np.empty(9)
     S = np.empty(3)
-    R = np.empty((3, 3))
+    R = np.empty(9)
     rn = np.empty(3)
     for k in range(x.shape[0]):
         for i in range(3):
-            P[0, i] = x[k, i]
-            P[1, i] = xp[k, i]
-            P[2, i] = xpp[k, i] if second else P[1, i]
+            p_prev = xp[k, i]
+            P[i] = x[k, i]
+            P[3 + i] = p_prev
+            P[6 + i] = xpp[k, i] if second else p_prev
         ok = True
         for j in range(3):
-            p0, p1, p2 = P[j, 0] - C[j, 0], P[j, 1] - C[j, 1], P[j, 2] - C[j, 2]
+            o = 3 * j
+            p0, p1, p2 = P[o] - C[o], P[o + 1] - C[o + 1], P[o + 2] - C[o + 2]
             s = p0 * a0 + p1 * a1 + p2 * a2
             S[j] = s
-            R[j, 0], R[j, 1], R[j, 2] = p0 - s * a0, p1 - s * a1, p2 - s * a2
-            rn[j] = math.sqrt(R[j, 0] ** 2 + R[j, 1] ** 2 + R[j, 2] ** 2)
-            if rn[j] <= 1e-9:
+            r0, r1, r2 = p0 - s * a0, p1 - s * a1, p2 - s * a2
+            R[o], R[o + 1], R[o + 2] = r0, r1, r2
+            rj = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            rn[j] = rj
+            if rj <= 1e-9:
                 ok = False
         if not ok:
             continue
+        u0, u1, u2 = R[0], R[1], R[2]
+        v0, v1, v2 = R[3], R[4], R[5]
         # turn from configuration j+1 to j about the axis
-        x0, x1, x2 = cross3(R[1, 0], R[1, 1], R[1, 2], R[0, 0], R[0, 1], R[0, 2])
-        dphi = math.atan2(x0 * a0 + x1 * a1 + x2 * a2, R[1, 0] * R[0, 0] + R[1, 1] * R[0, 1] + R[1, 2] * R[0, 2]) / h1
+        x0, x1, x2 = cross3(v0, v1, v2, u0, u1, u2)
+        dphi = math.atan2(x0 * a0 + x1 * a1 + x2 * a2, v0 * u0 + v1 * u1 + v2 * u2) / h1
         ds = (S[0] - S[1]) / h1
         dr = (rn[0] - rn[1]) / h1
         if second:
-            y0, y1, y2 = cross3(R[2, 0], R[2, 1], R[2, 2], R[1, 0], R[1, 1], R[1, 2])
-            dphi0 = math.atan2(y0 * a0 + y1 * a1 + y2 * a2,
-                               R[2, 0] * R[1, 0] + R[2, 1] * R[1, 1] + R[2, 2] * R[1, 2]) / h2
+            w0, w1, w2 = R[6], R[7], R[8]
+            y0, y1, y2 = cross3(w0, w1, w2, v0, v1, v2)
+            dphi0 = math.atan2(y0 * a0 + y1 * a1 + y2 * a2, w0 * v0 + w1 * v1 + w2 * v2) / h2
             ds0 = (S[1] - S[2]) / h2
             dr0 = (rn[1] - rn[2]) / h2
         else:
@@ -186,7 +195,8 @@ def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
         s_new = S[0] + c1 * ds + c0 * ds0
         r_new = rn[0] + c1 * dr + c0 * dr0
         phi = c1 * dphi + c0 * dphi0
-        u0, u1, u2 = R[0, 0] / rn[0], R[0, 1] / rn[0], R[0, 2] / rn[0]
+        r0 = rn[0]
+        u0, u1, u2 = u0 / r0, u1 / r0, u2 / r0
         w0, w1, w2 = cross3(a0, a1, a2, u0, u1, u2)
         cp, sp = math.cos(phi), math.sin(phi)
         out[k, 0] = cn0 + s_new * a0 + r_new * (cp * u0 + sp * w0)

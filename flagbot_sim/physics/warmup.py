@@ -1,32 +1,42 @@
-"""Compile (first run) or load (every later run) the compiled kernels before a simulation starts.
+"""Compile (first run) or load (every later run) the compiled kernels a simulation will call, before it starts.
 
 numba compiles a kernel on its first call and caches the machine code on disk (next to the package, or in a
 per-user cache directory when the install is read-only: numba's own fallback, ``NUMBA_CACHE_DIR`` overrides
-both). Without this module the first steps of the first run would pay ~8 s of compilation, silently, and count
-it as simulation time. :func:`ensure_compiled` instead
+both). Without this module the first steps of the first run would pay the compilation silently and count it as
+simulation time. :func:`ensure_compiled` instead
 
-* says so in one line ("compiling kernels (first run only)") when the cache is empty,
-* compiles in two processes at once, because the kernels fall into two independent groups: the model's springs
-  (frames, strains, bend-twist, stretch) here, and the solver's, predictor's, RFT's and clamp's in a helper
-  process that never builds an elastic model; on a 2-core machine that halves the wait,
-* then loads every kernel into this process, so that stepping starts with nothing left to compile or load.
+* compiles only the kernel *groups* the caller will use (:func:`groups_for`: a scene without head torque or RFT
+  compiles nothing for them, a steady solve no predictor and no time-stepping solver),
+* when the cache is cold, says so once ("compiling kernels (first run only") and then reports each group as it
+  finishes, with the seconds so far and an estimate of the time left on this machine,
+* compiles in two processes at once: the groups are independent (each compiles on a tiny network of its own),
+  so they are split by their measured cost (``Group.weight``) between this process and a helper process that
+  imports only the physics; on a 2-core machine that halves the wait,
+* then loads every group into this process, so that stepping starts with nothing left to compile or load.
 
-Its time is reported as ``compile_seconds``, apart from the simulation's wall time and real-time factor.
-Both groups drive the package's own code paths on tiny models, so the compiled signatures are the ones a run
-uses (a test checks that a run after the warm-up compiles nothing).
+Its time is reported as ``compile_seconds``, apart from the simulation's wall time and real-time factor. Each
+group drives the package's own code paths (or its kernels with arguments of the types the model passes), so the
+compiled signatures are the ones a run uses: a test checks that a run after the warm-up compiles nothing, for
+each built-in scene and effect.
 """
 from __future__ import annotations
 
+import contextlib
+import functools
+import gc
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
-from typing import Callable
+from dataclasses import dataclass
+from typing import Callable, Iterable
 
 import numpy as np
 
-_DONE = False
-SPRINGS, SOLVER = "springs", "solver"
+#: groups loaded (compiled or read from the cache) in this process
+_LOADED: set[str] = set()
 
 
 def kernels_mode() -> str:
@@ -35,103 +45,232 @@ def kernels_mode() -> str:
     return "python" if config.DISABLE_JIT else "compiled"
 
 
-def _tiny_scene(overrides: list[str]):
+# ----------------------------------------------------------------------------------------------- the groups
+@functools.lru_cache(maxsize=1)
+def _tiny_network():
+    """A 3-flagellum design-1 network with four edges per flagellum, and its straight configuration's frames
+    computed with numpy (no compiled code, so that each group compiles only its own kernels). Shared by the
+    groups, which read these arrays and never write them."""
     from ..scene import load_scene
-    return load_scene("design1", ["flagellum.length=0.02", "flagellum.edge_length=0.005", *overrides])
-
-
-def warm_springs() -> None:
-    """Frames, rest strains, stretch and bend-twist springs: residual and Jacobian of a tiny robot (the energy
-    alone, which only the tests evaluate, compiles where it is used)."""
-    from .model import RobotModel
-    from .stepper import ImplicitEuler
-    # (the head torque's kernel is the solver group's: it balances the two groups' compile times)
-    model = RobotModel(_tiny_scene(["scene.effects=['inertia','head_drag','motor']"]))
-    st = model.initial_state()
-    ctx = model.context(st.q + 1e-6, st, ImplicitEuler().plan(st, 1e-2, 0.1))
-    model.residual(ctx)
-    model.jacobian(ctx)
-
-
-def warm_solver() -> None:
-    """Arrow factor/solve, predictor, RFT and the clamp's twist angles, on a network alone (no elastic model)."""
-    from .assembly import SparsePattern
-    from .effects import RFTDrag, StepContext
-    from .elastic import spring_dofs, tangent_torque
-    from .frames import EdgeFrames, twist_for_director, unit_rows
-    from .linsolve import ArrowSolver, flagellum_chains
-    from .model import State
     from .network import build_network
+    net = build_network(load_scene("design1", ["robot.n_flagella=3", "flagellum.length=0.02",
+                                               "flagellum.edge_length=0.005"]))
+    q = net.initial_q()
+    N = net.n_nodes
+    x = q[: 3 * N].reshape(N, 3)
+    e = x[net.edges[:, 1]] - x[net.edges[:, 0]]
+    length = np.sqrt(np.einsum("ki,ki->k", e, e))
+    t = e / length[:, None]
+    d1 = np.cross(t, np.array([0.3, 0.5, 0.8]))
+    d1 /= np.sqrt(np.einsum("ki,ki->k", d1, d1))[:, None]
+    d2 = np.cross(t, d1)
+    return net, q, x, t, length, d1, d2
+
+
+def _warm_frames() -> None:
+    """Reference frames: the trial frames of every iterate, transported from the committed ones."""
+    from .frames import EdgeFrames, trial_frames
+    net, q, x, t, length, d1, d2 = _tiny_network()
+    committed = EdgeFrames(t, d1, d2, np.zeros(net.n_hinges))
+    trial_frames(x + 1e-6, net.edges, net.hinge_edges, net.hinge_sign, committed)
+
+
+def _warm_stretch() -> None:
+    """The stretching springs' residual and Jacobian (the arguments ElasticModel.accumulate passes)."""
+    from .elastic import _stretch, spring_dofs
+    net, q, x, t, length, d1, d2 = _tiny_network()
+    stretch, _ = spring_dofs(net)
+    slots = np.zeros((net.n_edges, 36), np.int64)
+    for J in (np.empty(0), np.zeros(1)):
+        _stretch(t, length, net.edge_rest_length, net.EA, stretch, slots, np.zeros(net.ndof), J, len(J) > 0)
+
+
+def _warm_bend_twist() -> None:
+    """The bend-twist springs' residual and Jacobian (and so their strains: model set-up, motor torque)."""
+    from .elastic import _bend_twist, spring_dofs
+    net, q, x, t, length, d1, d2 = _tiny_network()
+    _, hinge = spring_dofs(net)
+    H = net.n_hinges
+    theta = q[3 * net.n_nodes:]
+    rt, beta, tau_bar = np.zeros(H), np.zeros(H), np.zeros(H)
+    kappa_bar = np.zeros((H, 2))
+    k_bend, k_twist = net.EI / net.voronoi, net.GJ / net.voronoi
+    slots = np.zeros((H, 121), np.int64)
+    for J in (np.empty(0), np.zeros(1)):
+        _bend_twist(x, theta, t, t, length, d1, d2, rt, net.hinge_nodes, net.hinge_edges, net.hinge_sign, beta,
+                    kappa_bar, tau_bar, k_bend, k_twist, hinge, slots, int(net.motor_hinge), 0.0, np.empty((H, 6)),
+                    np.zeros(net.ndof), J, len(J) > 0)
+
+
+def _warm_time_stepping() -> None:
+    """What a time-stepped Simulation adds to the model: the predictor and the observer's spin angle."""
+    from .frames import angle3
+    from .model import State
     from .stepper import axis_nodes, predict
-    net = build_network(_tiny_scene([]))
+    net, q, x, t, length, d1, d2 = _tiny_network()
+    v = np.zeros_like(q)
+    st = State(0.0, q, v, None, 0.0, 1e-2, 1e-2, q.copy(), v.copy(), q.copy())
+    predict(st, 1e-2, axis_nodes(net), net.n_nodes)
+    u, w = d1[0], d2[0]
+    angle3(u[0], u[1], u[2], w[0], w[1], w[2], t[0, 0], t[0, 1], t[0, 2])
+
+
+def _warm_arrow() -> None:
+    """The arrow solver's factorisation and solve (banded flagella + Schur complement of the core)."""
+    from .assembly import SparsePattern
+    from .elastic import spring_dofs
+    from .linsolve import ArrowSolver, flagellum_chains
+    net, *_ = _tiny_network()
     stretch, hinge = spring_dofs(net)
-    rft = RFTDrag(net, 1.0, 2.0)
-    blocks = [(stretch, stretch), (hinge, hinge), *rft.blocks()]
-    pattern = SparsePattern(net.ndof, blocks)
-    rft.bind(pattern.slots[2:])
+    pattern = SparsePattern(net.ndof, [(stretch, stretch), (hinge, hinge)])
     data = np.zeros(pattern.nnz)
     data[pattern.diag_slots] = 1.0
     solver = ArrowSolver(pattern, flagellum_chains(net))
     solver.factor(data)
     solver.solve(np.ones(net.ndof))
-    q = net.initial_q()
-    N = net.n_nodes
+
+
+def _effect_context(net, q, x, v):
+    from .effects import StepContext
+    return StepContext(q=q, x=x, v=v, a=v.copy(), dv_dq=1.0, da_dq=1.0, t=0.0, h=1.0, drive_angle=0.0,
+                       frames=None)
+
+
+def _warm_rft() -> None:
+    """Resistive-force theory: its residual, Jacobian and the medium's force on the flagella."""
+    from .assembly import SparsePattern
+    from .effects import RFTDrag
+    net, q, x, *_ = _tiny_network()
+    rft = RFTDrag(net, 1.0, 2.0)
+    pattern = SparsePattern(net.ndof, rft.blocks())
+    rft.bind(pattern.slots)
     v = np.full(net.ndof, 1e-3)
-    ctx = StepContext(q=q, x=q[: 3 * N].reshape(N, 3), v=v, a=v.copy(), dv_dq=1.0, da_dq=1.0, t=0.0, h=1.0,
-                      drive_angle=0.0, frames=None)
+    ctx = _effect_context(net, q, x, v)
     rft.add_force(ctx, np.zeros(net.ndof))
     rft.add_jacobian(ctx, np.zeros(pattern.nnz))
-    rft.node_forces(ctx.x, v)
-    t, _ = unit_rows(net.nodes[net.edges[:, 1]] - net.nodes[net.edges[:, 0]])
-    fr = EdgeFrames.initial(t, net.n_hinges)
-    st = State(0.0, q, v, fr, 0.0, 1e-2, 1e-2, q.copy(), v.copy(), q.copy())
-    predict(st, 1e-2, axis_nodes(net), N)
-    e = np.arange(2)
-    twist_for_director(fr.d1[e], fr.t[e], t[e], fr.d1[e] @ np.eye(3).T, q[e])
+    rft.node_forces(x, v)
+
+
+def _warm_head_torque() -> None:
+    """The head's Stokes torque on its tilting tangent (residual and Jacobian: one signature)."""
+    from .elastic import tangent_torque
+    net, q, x, t, length, *_ = _tiny_network()
     x_dofs = np.arange(6, dtype=np.int64)
-    for want in (False, True):
-        tangent_torque(fr.t, fr.t, np.ones(len(t)), 0, 1.0, 1.0, x_dofs, np.zeros(net.ndof), np.zeros(36 + 6),
-                       np.arange(36, dtype=np.int64), np.arange(36, 42, dtype=np.int64), want)
+    tangent_torque(t, t, length, 0, 1.0, 1.0, x_dofs, np.zeros(net.ndof), np.zeros(42),
+                   np.arange(36, dtype=np.int64), np.arange(36, 42, dtype=np.int64), True)
 
 
-GROUPS: dict[str, Callable[[], None]] = {SPRINGS: warm_springs, SOLVER: warm_solver}
+def _warm_clamp() -> None:
+    """The clamp's prescribed twist angles."""
+    from .frames import twist_for_director
+    net, q, x, t, length, d1, d2 = _tiny_network()
+    e = np.arange(2)
+    twist_for_director(d1[e], t[e], t[e], d1[e] @ np.eye(3).T, q[e])
 
 
-def _dispatchers():
-    """The kernels a run calls from Python (their callees are compiled into them)."""
-    from . import effects, elastic, frames, linsolve, stepper
-    return [frames.unit_rows, frames._trial_frames, frames.twist_for_director, elastic._stretch,
-            elastic._bend_twist, elastic._hinge_strains, elastic.tangent_torque,
-            effects.rft_kernel(), linsolve._arrow_factor, linsolve._arrow_solve, stepper._predict_cylindrical]
+@dataclass(frozen=True)
+class Group:
+    name: str
+    warm: Callable[[], None]
+    #: the dispatchers it compiles that Python calls ("module.name"; callees are compiled into them)
+    kernels: tuple[str, ...]
+    #: compile seconds on the reference machine (docs/startup.md; 2-core x86-64, one process, quiet): only
+    #: the split between the two processes and the estimate of the time left use it, so it need not be exact
+    weight: float
+    doc: str
 
 
-def cache_is_warm() -> bool:
-    """Whether every kernel has an entry in numba's on-disk cache (a guess: a stale entry is recompiled)."""
+def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float) -> Group:
+    return Group(warm.__name__.removeprefix("_warm_"), warm, kernels, weight, (warm.__doc__ or "").strip())
+
+
+#: every kernel group, by name. Effects name theirs in ``Effect.kernel_groups``.
+GROUPS: dict[str, Group] = {g.name: g for g in (
+    _group(_warm_frames, ("frames._trial_frames",), 0.45),
+    _group(_warm_stretch, ("elastic._stretch",), 0.25),
+    _group(_warm_bend_twist, ("elastic._bend_twist",), 3.4),
+    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.55),
+    _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.15),
+    _group(_warm_rft, ("effects.rft",), 0.35),
+    _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
+    _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
+)}
+
+#: what every model needs: its frames and its springs
+MODEL_GROUPS = ("frames", "stretch", "bend_twist")
+#: the helper process's start in the units of ``Group.weight``, forked or as a fresh interpreter (which imports
+#: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s: the rest of
+#: its 0.4 is what several small groups cost together above their weights, each measured alone (design 1's six
+#: besides bend_twist take as long as bend_twist in one process, where their weights add up to 94% of its)
+HELPER_START = {"fork": 0.4, "spawn": 1.1}
+
+
+def groups_for(scene, time_stepping: bool = True) -> list[str]:
+    """The kernel groups a model of ``scene`` uses: its frames and springs, its effects' kernels, and for a
+    time-stepped simulation (``time_stepping``) the predictor, the observer and, unless the scene asks for
+    scipy's sparse LU, the arrow solver. A steady solve (``time_stepping=False``) uses none of those three."""
+    from .effects import EFFECT_TYPES
+    names = list(MODEL_GROUPS)
+    for effect in scene.effects:
+        names.extend(EFFECT_TYPES[effect].kernel_groups)
+    if time_stepping:
+        names.append("time_stepping")
+        if scene.numerics.linear_solver != "splu":
+            names.append("arrow")
+    return list(dict.fromkeys(names))
+
+
+# ----------------------------------------------------------------------------------------------- the cache
+def _dispatcher(name: str):
+    import importlib
+    module, func = name.split(".")
+    if name == "effects.rft":
+        from .effects import rft_kernel
+        return rft_kernel()
+    return getattr(importlib.import_module(f"{__package__}.{module}"), func)
+
+
+def _dispatchers(groups: Iterable[str] | None = None):
+    """The kernels the groups (default: all) compile that a run calls from Python."""
+    return [_dispatcher(k) for g in (GROUPS if groups is None else groups) for k in GROUPS[g].kernels]
+
+
+def _cached(dispatcher) -> bool:
+    """Whether numba's on-disk cache holds a valid entry for the kernel: an index for this source file's
+    version with at least one signature (a stale entry, after an edit or an upgrade, is recompiled)."""
+    return bool(dispatcher._cache._cache_file._load_index())
+
+
+def cache_is_warm(groups: Iterable[str] | None = None) -> bool:
+    """Whether numba's on-disk cache holds every kernel of the groups (default: all groups)."""
     try:
-        return all(os.path.exists(d._cache._cache_file._index_path) for d in _dispatchers())
-    except AttributeError:         # numba internals changed: assume cold, which only costs the helper process
+        return all(_cached(d) for d in _dispatchers(groups))
+    except (AttributeError, OSError):   # numba internals changed: assume cold, which only costs the helper process
         return False
 
 
-def ensure_compiled(notify: Callable[[str], None] | None = None) -> float:
-    """Compile or load every kernel into this process once; returns the seconds it took (0 if already done).
+# ----------------------------------------------------------------------------------------------- compiling
+def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterable[str] | None = None) -> float:
+    """Compile or load the kernel groups (default: every group) into this process; returns the seconds it took
+    (0 if they were all loaded already).
 
-    ``notify`` receives the one-line message shown when the cache is empty (default: stderr)."""
-    global _DONE
-    if _DONE:
+    ``notify`` receives the lines shown while the cache is cold (default: stderr): one that says the kernels
+    are being compiled, then one per finished group with the seconds so far and an estimate of the time left."""
+    from numba.core import config
+    wanted = [g for g in (GROUPS if groups is None else dict.fromkeys(groups)) if g not in _LOADED]
+    if not wanted:
         return 0.0
     t0 = time.perf_counter()
-    from numba.core import config
-    helper = None
-    if not config.DISABLE_JIT and not cache_is_warm():
-        (notify or _stderr)("flagbot_sim: compiling kernels (first run only, ~5-10 s; later runs load them from "
-                            "the cache)")
-        helper = _start_helper(SOLVER)
-    warm_springs()
-    if helper is not None:
-        helper.wait()
-    warm_solver()                  # loads what the helper compiled (or compiles it, if the helper failed)
-    _DONE = True
+    if config.DISABLE_JIT:                        # plain Python: nothing to compile
+        _LOADED.update(wanted)
+        return time.perf_counter() - t0
+    cold = [g for g in wanted if not cache_is_warm([g])]
+    if cold:
+        _Compile(cold, notify or _stderr, t0).run()
+    for g in wanted:                              # loads what is cached (or compiles what the helper failed to)
+        if g not in _LOADED:
+            GROUPS[g].warm()
+            _LOADED.add(g)
     return time.perf_counter() - t0
 
 
@@ -139,13 +278,219 @@ def _stderr(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def _start_helper(group: str) -> subprocess.Popen | None:
+def _cores() -> int:
     try:
-        return subprocess.Popen([sys.executable, "-m", "flagbot_sim.physics.warmup", group],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=dict(os.environ))
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def split(groups: list[str], processes: int, helper_start: float) -> tuple[list[str], list[str]]:
+    """(this process's groups, the helper's): the largest first, each to the process that would finish it
+    first, the helper starting ``helper_start`` late; everything here when one process would finish nearly as
+    soon (one core, or too little to compile to pay for the helper's start)."""
+    if processes < 2 or sum(GROUPS[g].weight for g in groups) < 2 * helper_start:
+        return list(groups), []
+    mine, theirs = [], []
+    load_mine, load_theirs = 0.0, helper_start
+    for g in sorted(groups, key=lambda g: -GROUPS[g].weight):
+        if load_mine <= load_theirs:
+            mine.append(g)
+            load_mine += GROUPS[g].weight
+        else:
+            theirs.append(g)
+            load_theirs += GROUPS[g].weight
+    return mine, theirs
+
+
+class _Compile:
+    """One cold compile: this process's groups here, the others in a helper process, progress as they finish."""
+
+    def __init__(self, groups: list[str], notify: Callable[[str], None], t0: float):
+        self.groups, self.notify, self.t0 = groups, notify, t0
+        self.done: list[str] = []
+        self.t_compile = t0
+        self.lock = threading.Lock()
+        self.helper_done = threading.Event()
+
+    def run(self) -> None:
+        with _fewer_collections():
+            _numba_set_up()                   # before the fork: the helper inherits numba's compiler set up
+            mine, theirs = split(self.groups, _cores(),
+                                 HELPER_START["fork" if _single_threaded_linux() else "spawn"])
+            self.share = [mine, theirs]
+            self.t_compile = time.perf_counter()
+            how = "in 2 processes" if theirs else "in 1 process"
+            self.notify(f"flagbot_sim: compiling kernels (first run only; later runs load them from the cache): "
+                        f"{len(self.groups)} groups ({', '.join(self.groups)}) {how}")
+            helper = _start_helper(theirs) if theirs else None
+            if helper is not None:
+                threading.Thread(target=self._read, args=(helper,), daemon=True).start()
+            try:
+                for g in mine:
+                    GROUPS[g].warm()
+                    _LOADED.add(g)
+                    self._finished(g)
+            except BaseException:
+                if helper is not None:
+                    helper.kill()
+                raise
+            if helper is not None:
+                if not self.helper_done.is_set():
+                    gc.collect()              # this process's compiling garbage, while the helper still works
+                self.helper_done.wait()
+        # a group the helper did not finish is compiled by ensure_compiled, which warms every group afterwards
+        self.notify(f"flagbot_sim: kernels compiled in {time.perf_counter() - self.t0:.1f} s")
+
+    def _read(self, helper: _Helper) -> None:
+        """Report the helper's groups as they finish; once all have (or it ended), let this process go on at
+        once and reap the helper here: a process that compiled takes ~0.5 s to end (its memory is released)."""
+        expected = set(self.share[1])
+        try:
+            for line in helper.lines:
+                parts = line.split()
+                if len(parts) == 2 and parts[0] == "done" and parts[1] in expected:
+                    self._finished(parts[1])
+                    expected.discard(parts[1])
+                    if not expected:
+                        self.helper_done.set()
+        finally:
+            self.helper_done.set()
+            helper.wait()
+            helper.lines.close()
+
+    def time_left(self, elapsed: float) -> float | None:
+        """Seconds until the later of the two processes finishes, if each goes on at the rate it has shown in
+        the ``elapsed`` seconds since compiling began (a process with nothing finished yet is taken to go at
+        the other's rate since then); None before any group has finished."""
+        rates = []
+        for share in self.share:
+            done = sum(GROUPS[g].weight for g in share if g in self.done)
+            rates.append(done / elapsed if done > 0 else None)
+        known = [r for r in rates if r]
+        if not known:
+            return None
+        finish = [sum(GROUPS[g].weight for g in share) / (rate or min(known))
+                  for share, rate in zip(self.share, rates) if any(g not in self.done for g in share)]
+        return max(0.0, max(finish) - elapsed) if finish else 0.0
+
+    def _finished(self, group: str) -> None:
+        with self.lock:
+            self.done.append(group)
+            now = time.perf_counter()
+            elapsed = now - self.t0
+            left = self.time_left(now - self.t_compile)        # (the rates from when compiling began)
+            tail = f", about {left:.0f} s to go" if left is not None and len(self.done) < len(self.groups) else ""
+            self.notify(f"flagbot_sim:   {group} compiled ({len(self.done)}/{len(self.groups)}), "
+                        f"{elapsed:.1f} s so far{tail}")
+
+
+@contextlib.contextmanager
+def _fewer_collections():
+    """Keep the garbage collector out of the compile's way (docs/startup.md).
+
+    Compiling allocates millions of short-lived objects and leaves ~10^6 long-lived ones behind (numba keeps each
+    kernel's typed IR). With the objects alive at the start frozen out of the collector's sweeps and a larger
+    first-generation threshold, a compile spends ~0.2 s collecting instead of ~0.55 s; at the end everything
+    alive is frozen too (the caller collects first when it has time to wait), or the next full collection walks
+    it all again (~0.3 s, just when the simulation starts) and every later one too. Freezing keeps nothing
+    alive: reference counting frees frozen objects as ever, only a cycle among them waits. The thresholds are
+    handed back."""
+    old = gc.get_threshold()
+    gc.freeze()
+    gc.set_threshold(50_000, 20, 20)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*old)
+        gc.freeze()
+
+
+def _numba_set_up() -> None:
+    """numba loads its typing and lowering registries at its first compile in a process (~0.3 s)."""
+    from .jit import kernel
+    kernel(_one)(1.0)
+
+
+def _one(x):
+    return x + 1.0
+
+
+class _Helper:
+    """The helper process: the groups it compiles, its 'done GROUP' lines as they come (``lines``), ``wait``.
+
+    Forked from this process where that is safe (Linux, and this process has a single thread: no lock can be
+    held by a thread the child would not have): the child starts with the interpreter, numpy, numba and its
+    compiler already set up, where a fresh interpreter takes about a second to get there. Otherwise (a ROS node
+    has its middleware's threads, other systems) a fresh interpreter runs this module."""
+
+    def __init__(self, groups: list[str]):
+        self.pid = self.proc = None
+        self._reaping, self._reaped = threading.Lock(), False
+        if _single_threaded_linux():
+            r, w = os.pipe()
+            pid = os.fork()
+            if pid == 0:                          # the child: compile, report, and leave without any clean-up
+                code = 1
+                try:
+                    os.close(r)
+                    out = os.fdopen(w, "w")
+                    for g in groups:                  # (the collector as the parent set it for compiling)
+                        GROUPS[g].warm()
+                        print("done", g, file=out, flush=True)
+                    code = 0
+                finally:
+                    os._exit(code)
+            os.close(w)
+            self.pid, self.lines = pid, os.fdopen(r)
+        else:
+            self.proc = subprocess.Popen([sys.executable, "-m", "flagbot_sim.physics.warmup", *groups], text=True,
+                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=dict(os.environ))
+            self.lines = self.proc.stdout
+
+    def wait(self) -> None:
+        """Reap the helper (once, from whichever thread comes first)."""
+        with self._reaping:
+            if self._reaped:
+                return
+            self._reaped = True
+            try:
+                self.proc.wait() if self.proc is not None else os.waitpid(self.pid, 0)
+            except ChildProcessError:
+                pass
+
+    def kill(self) -> None:
+        try:
+            os.kill(self.proc.pid if self.proc is not None else self.pid, signal.SIGKILL)
+        except OSError:
+            pass
+        self.wait()
+
+
+def _single_threaded_linux() -> bool:
+    if not sys.platform.startswith("linux") or not hasattr(os, "fork"):
+        return False
+    try:
+        with open("/proc/self/status") as f:
+            return any(line.split() == ["Threads:", "1"] for line in f)
+    except OSError:
+        return False
+
+
+def _start_helper(groups: list[str]) -> _Helper | None:
+    try:
+        return _Helper(groups)
     except OSError:
         return None
 
 
-if __name__ == "__main__":          # the helper process: compile one group into the cache
-    GROUPS[sys.argv[1]]()
+def _compile_groups(groups: list[str], out) -> None:
+    """In the helper process: compile the groups into the cache, writing 'done GROUP' after each."""
+    with _fewer_collections():
+        for g in groups:
+            GROUPS[g].warm()
+            print("done", g, file=out, flush=True)
+
+
+if __name__ == "__main__":               # the helper process when it is not forked
+    _compile_groups(sys.argv[1:], sys.stdout)
