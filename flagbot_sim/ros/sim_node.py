@@ -40,7 +40,7 @@ from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
                      lifecycle_requested, node_scene, record_refusal, text_refusal)
-from .runtime import Polled, one_line, run_node, take_all, wants_help
+from .runtime import Polled, interruptible, one_line, run_node, take_all, wants_help
 
 PARAMS = [
     ParamSpec("scene", "design1", "built-in scene name (design1, design2, ...) or path to a .toml scene file; "
@@ -94,7 +94,8 @@ def build_simulation(scene: str, n_flagella: int, scene_overrides) -> Simulation
         raise SceneError(f"{sc.robot.n_flagella} flagella of {edges // sc.robot.n_flagella} edges: sim_node runs "
                          f"at most {MAX_NODE_EDGES} flagellum edges (a step would take longer than many ticks)")
     try:
-        return Simulation(sc)
+        with interruptible():            # Ctrl-C during the first compile stops the node now, not after it
+            return Simulation(sc)
     except SceneError:
         raise
     except Exception as exc:  # noqa: BLE001 - an unbuildable scene is refused, never a crash of the node
