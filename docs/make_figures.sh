@@ -11,7 +11,8 @@
 #   fig1      docs/figures/fig1_paper.png, fig1_design1.png, fig1_design2.png           (flagbot render; ~15 s)
 #   sweeps    docs/figures/design1, design2, design1_length, design2_length: CSV + figures (flagbot sweep; ~30 s)
 #   accuracy  docs/accuracy.csv, docs/figures/accuracy_vs_time.png, accuracy_calibration.png
-#             (flagbot bench accuracy, the whole study: ~12 min on a quiet 2-core machine, more under load)
+#             (flagbot bench accuracy, the whole study: ~12 min on an earlier 2-core VM, docs/accuracy.md; more
+#             under load. ACCURACY_ARGS=--quick: 63 s on the 2-core VM at load ~1.7)
 #   redraw    the sweeps' figures from their results.csv (flagbot sweep-plot) and the accuracy figures from
 #             docs/accuracy.csv (flagbot bench accuracy --plot-from); seconds
 #   speed     docs/speed.txt, headed by the host, its load and the date (flagbot bench speed; ~2.5 min)
