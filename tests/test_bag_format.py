@@ -498,3 +498,53 @@ def test_recording_to_a_directory_fifo_or_device_is_refused_and_writes_nothing_b
         assert words in str(err.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe", "runs"] and not list(d.iterdir())
     assert not os.path.exists("/dev/null.mcap")
+
+
+def test_writer_refuses_a_symbolic_link_to_a_missing_or_irregular_target_and_never_follows_one(tmp_path,
+                                                                                               monkeypatch):
+    """A dangling link (at the name given or at the '.mcap' name made of it) would create its target elsewhere; a
+    link to a directory or FIFO is no regular file: all refused by name, nothing created. Without overwrite the
+    file is opened O_EXCL ("xb"), so a link made after the checks (a race) is refused too, its target untouched."""
+    import os
+    from flagbot_sim.bag.writer import BagWriteError
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    target = elsewhere / "target.mcap"
+    fifo = elsewhere / "pipe"
+    os.mkfifo(fifo)
+    (tmp_path / "link.mcap").symlink_to(target)
+    (tmp_path / "bare").symlink_to(target)
+    (tmp_path / "run.mcap").symlink_to(target)
+    (tmp_path / "dir.mcap").symlink_to(elsewhere)
+    (tmp_path / "fifo.mcap").symlink_to(fifo)
+    for name, words in (("link.mcap", "which does not exist"), ("bare", "which does not exist"),
+                        ("run", "which does not exist"), ("dir.mcap", "not a regular file"),
+                        ("fifo.mcap", "not a regular file")):
+        for overwrite in (False, True):
+            with pytest.raises(BagWriteError) as err:
+                BagWriter(tmp_path / name, overwrite=overwrite)
+            assert "symbolic link" in str(err.value) and words in str(err.value), (name, str(err.value))
+            assert str(tmp_path) in str(err.value)
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["pipe"]
+    # the race: the checks pass, then a link appears before the open
+    import builtins
+
+    from flagbot_sim.bag import writer as writer_module
+    race = tmp_path / "race.mcap"
+
+    def link_appears(file, mode="r", *a, **kw):
+        if Path(file) == race:
+            race.symlink_to(target)
+        return builtins.open(file, mode, *a, **kw)
+    monkeypatch.setattr(writer_module, "open", link_appears, raising=False)
+    with pytest.raises(BagWriteError, match="File exists"):
+        BagWriter(race)
+    assert not target.exists()
+    monkeypatch.undo()
+    # a link to an existing regular file is that file: refused as existing, replaced only with overwrite
+    target.write_bytes(b"keep me")
+    with pytest.raises(BagWriteError, match="it exists"):
+        BagWriter(tmp_path / "link.mcap")
+    assert target.read_bytes() == b"keep me"
+    BagWriter(tmp_path / "link.mcap", overwrite=True).close()
+    assert target.read_bytes().startswith(bag.format.MCAP_MAGIC)

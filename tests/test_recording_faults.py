@@ -108,3 +108,25 @@ def test_standalone_record_refuses_a_target_it_cannot_write(tmp_path):
     assert f"error: cannot record to {tmp_path / 'typo' / 'run.mcap'}: directory {tmp_path / 'typo'} does not exist" \
         in r.stderr and "Traceback" not in r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_standalone_record_refuses_a_dangling_symbolic_link(tmp_path):
+    """`flagbot record -o LINK` and the `record` script with LINK -> a missing file: one `error:` line naming the
+    link, exit 2, the target not created (it used to be written through the link)."""
+    from cli_helpers import flagbot
+    target = tmp_path / "elsewhere" / "target.mcap"
+    target.parent.mkdir()
+    link = tmp_path / "run.mcap"
+    link.symlink_to(target)
+    for cmd in (("record",), ("-m", "flagbot_sim.ros.recorder")):
+        if cmd[0] == "record":
+            r = flagbot("record", "-o", str(link), timeout=120)
+            code, err = r.returncode, r.stderr
+        else:
+            p = ChildProcess(*cmd, "-o", str(link))
+            code, err = p.wait(timeout=120)
+        assert code == 2, err
+        lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
+        assert len(lines) == 1 and str(link) in lines[0] and "symbolic link" in lines[0], err
+        assert "Traceback" not in err
+        assert not target.exists() and link.is_symlink()
