@@ -12,7 +12,7 @@ import errno
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Callable, Mapping
 
@@ -67,13 +67,17 @@ class WriteSummary:
     size_bytes: int
     closed: bool
     error: str = ""             # "" when every write succeeded
+    lost: dict[str, int] = field(default_factory=dict)   # topic -> messages that never reached the recorder
 
     def format(self) -> str:
+        lost = sum(self.lost.values())
         lines = [f"{self.path}: {self.messages} messages, {len(self.topics)} topics, {self.duration:.2f} s, "
                  f"{self.size_bytes / 1024:.1f} KiB, "
-                 f"{'closed with summary and index' if self.closed else 'NOT closed'}"]
+                 f"{'closed with summary and index' if self.closed else 'NOT closed'}"
+                 + (f", {lost} messages LOST before reaching the recorder" if lost else "")]
         for t in sorted(self.topics.values(), key=lambda s: s.topic):
-            lines.append(f"  {t.topic:32s} {t.type_name:40s} {t.count:8d}")
+            n = self.lost.get(t.topic, 0)
+            lines.append(f"  {t.topic:32s} {t.type_name:40s} {t.count:8d}" + (f"  {n} lost" if n else ""))
         if self.error:
             lines.append(f"  ERROR: {self.error}")
         return "\n".join(lines)
