@@ -95,8 +95,16 @@ def test_standalone_record_on_a_full_disk_logs_one_error_and_exits_non_zero(tmp_
     assert code == 0, text
     with BagReader(fixed) as rd:
         got = [int(rd.decode(m).data) for m in rd.messages()]
-    # contiguous from the first recorded message; what was lost is at most the last flush interval's worth
-    assert got == list(range(got[0], got[0] + len(got)))
+    # in order from the first recorded message; what was lost at the end is at most the last flush interval's
+    # worth. A gap in the middle is a message that never reached the recorder (on a loaded machine the recorder's
+    # process can be descheduled long enough for DDS to drop some: 4 of a 2000 Hz stream were once missing): the
+    # recorder writes every message it takes, so any such gap must be among the losses it counted and printed
+    # (docs/recording.md, "Lost messages")
+    assert got == sorted(set(got))
+    missing = got[-1] - got[0] + 1 - len(got)
+    line = [ln for ln in output.splitlines() if ln.strip().startswith("/t/omega_h")][-1]
+    reported = int(line.split()[3]) if line.endswith(" lost") else 0
+    assert missing <= reported, (missing, line)
     assert written - len(got) <= 2000 * 0.25, (written, len(got))
 
 
