@@ -623,7 +623,7 @@ def test_a_corrupt_chunk_is_counted_from_its_message_indexes_when_the_summary_is
     chunks = _chunks(src)
     c, n_lost = chunks[5]
     data[c.chunk_start_offset + c.chunk_length - 20] ^= 0x55
-    data[_summary_start(bytes(data))] = 0x7E                      # the first summary record's opcode: the summary is unreadable
+    data[_summary_start(bytes(data))] = 0x7E      # the first summary record's opcode: the summary is unreadable
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(data))
     rep = scan(bad)

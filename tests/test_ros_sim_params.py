@@ -20,6 +20,7 @@ from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomic
 from rclpy.parameter import parameter_value_to_python
 
 from flagbot_sim.bag import BagReader
+from flagbot_sim.bag.lost import LOST_METADATA_NAME, counts_from_record
 
 from ros_helpers import (DISCOVERY_TIMEOUT, ChildProcess, Listener, NodeProcess, call, set_params,
                          spin_until, t_of)
@@ -320,8 +321,13 @@ def test_recording_ran_through_the_campaign_without_a_gap(ros, device):
     with BagReader(record) as r:
         assert r.report.ok, r.report.describe_loss()
         rows = r.decoded("/clock")
-    log_s = [row[0] * 1e-9 for row in rows]
     sim_s = [t_of(row[2].clock) for row in rows]
     assert sim_s[0] < 1.0 and sim_s[-1] >= t_end - 1.0         # from the start of the run to the end of the tests
-    gap = max(b - a for a, b in zip(log_s, log_s[1:]))
-    assert gap < 1.0, f"the recording stopped for {gap:.2f} s"
+    # without a gap: every /clock this test's listener received while the recording ran is in it (not a bound on
+    # wall-time gaps, which a descheduled node makes long on a loaded machine without losing anything)
+    recorded = set(sim_s)
+    heard = [t_of(m.clock) for m in lis.msgs["clock"]]
+    missing = [t for t in heard if sim_s[0] <= t <= sim_s[-1] and t not in recorded]
+    assert not missing, f"the recording lacks {len(missing)} /clock messages the listener got, from t = {missing[0]}"
+    with BagReader(record) as r:
+        assert counts_from_record(r.metadata_named(LOST_METADATA_NAME)).get("/clock") == 0
