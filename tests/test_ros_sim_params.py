@@ -285,12 +285,13 @@ def clock_rate(ros, lis, seconds=1.0, settle=0.3) -> float:
 
 def test_refused_rate_change_keeps_the_clock_rate_and_refused_record_keeps_recording(ros, device):
     proc, lis, record, params = device
+    # margins from the rate achieved at 50 Hz on this machine now (a loaded machine achieves less), not from 50
     before = clock_rate(ros, lis)
-    assert before > 25             # publish_rate = 50 Hz
+    assert before > 15             # publish_rate = 50 Hz: well above the 5 and 10 Hz below
     (res,) = params.send(params_msg([("publish_rate", typed("publish_rate", 5.0)),
                                      ("record", typed("record", "/proc/x.mcap"))]), atomic=True)
     assert not res.successful and "/proc/x.mcap" in res.reason
-    assert clock_rate(ros, lis) > max(15.0, 0.5 * before)      # not the 5 Hz of the refused set
+    assert clock_rate(ros, lis) > max(7.5, 0.5 * before)       # not the 5 Hz of the refused set
     (res,) = set_params(ros, "sim_node", record="/proc/x.mcap")
     assert not res.successful and "/proc/x.mcap" in res.reason
     n0 = len(lis.msgs["diag"])
@@ -299,7 +300,7 @@ def test_refused_rate_change_keeps_the_clock_rate_and_refused_record_keeps_recor
     # a valid rate change still works
     (res,) = set_params(ros, "sim_node", publish_rate=10.0)
     assert res.successful, res.reason
-    assert 6 < clock_rate(ros, lis) < 14
+    assert 0.6 * min(10.0, 10.0 * before / 50.0) < clock_rate(ros, lis) < 14
 
 
 def test_use_sim_time_at_run_time_keeps_the_clock_running_and_is_said_once(ros, device):
