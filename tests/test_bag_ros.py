@@ -219,8 +219,11 @@ def test_replay_publishes_clock_from_log_time_with_rate_offset_and_filter(tmp_pa
     clock_t = np.array([c for c, _ in clocks]) * 1e-9
     clock_rx = np.array([rx for _, rx in clocks])
     latest = np.searchsorted(clock_rx, [rx for _, _, _, rx in got], side="right") - 1
-    assert np.all(latest >= 0) and np.all(np.diff(clock_rx) >= 0)
-    lag = clock_t[latest] - logged
+    # (the replay waits for the subscriber of /t/speed, not of /clock: the watcher's /clock subscription can match
+    # a few messages later; from then on every tick arrives)
+    seen = latest >= 0
+    assert seen.sum() >= len(got) - 5 and np.all(seen[np.argmax(seen):]) and np.all(np.diff(clock_rx) >= 0), latest
+    lag = clock_t[latest[seen]] - logged[seen]
     assert np.all(lag <= 1e-6) and np.all(lag > -0.02 - 1e-6), lag
     # rate 2: 0.1 s of log time apart = 0.05 s of wall time (the median of the arrival spacing)
     assert np.median(np.diff([rx for _, _, _, rx in got])) * 1e-9 == pytest.approx(0.1 / 2, rel=0.2)
