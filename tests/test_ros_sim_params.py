@@ -252,7 +252,7 @@ def test_every_bad_value_is_answered_refused_and_changes_nothing(ros, device, fi
             assert not res.successful, f"{label}: accepted"
             assert res.reason and len(res.reason) <= 1000, (label, res.reason[:2000])
         assert proc.alive(), f"{label}: sim_node died:\n{proc.output()[-3000:]}"
-        spin_until(ros, lambda: len(lis.msgs["clock"]) > n_clock, 5.0, f"/clock after {label}")
+        spin_until(ros, lambda: len(lis.msgs["clock"]) > n_clock, 30.0, f"/clock after {label}")
         assert params.read(NAMES) == before, label
     print(f"{len(cases)} bad parameter sets refused; slowest answer {slowest[0]:.3f} s ({slowest[1]})")
     assert len(cases) >= 150
@@ -264,7 +264,7 @@ def test_every_bad_value_is_answered_refused_and_changes_nothing(ros, device, fi
     ticks = [t_of(m.clock) for m in lis.msgs["clock"]]
     assert all(b >= a for a, b in zip(ticks, ticks[1:]))
     n0 = len(lis.msgs["diag"])
-    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, 5.0, "fresh diagnostics")
+    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, 30.0, "fresh diagnostics")
     diag = lis.diag_values()
     assert (diag["n_flagella"], diag["scene"]) == ("2", "design2")
     assert diag["recording"] == record and diag["recording_error"] == ""
@@ -295,7 +295,7 @@ def test_refused_rate_change_keeps_the_clock_rate_and_refused_record_keeps_recor
     (res,) = set_params(ros, "sim_node", record="/proc/x.mcap")
     assert not res.successful and "/proc/x.mcap" in res.reason
     n0 = len(lis.msgs["diag"])
-    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, 5.0, "fresh diagnostics")
+    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, 30.0, "fresh diagnostics")
     assert lis.diag_values()["recording"] == record
     # a valid rate change still works
     (res,) = set_params(ros, "sim_node", publish_rate=10.0)
