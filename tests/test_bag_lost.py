@@ -62,3 +62,4 @@ def test_per_topic_counts_and_their_metadata_record_round_trip():
     assert counts_from_record(rec) == {"/a": 2, "/b": 0} and rec["total"] == "2"
     assert counts_from_record(None) is None and counts_from_record({"counts": "nonsense"}) is None
     assert LOST_METADATA_NAME == "flagbot_sim.lost_messages"
+    assert [lc.first_loss("/b", s) for s in (4, 6, 8, 9)] == [False, True, False, False]   # said once per topic

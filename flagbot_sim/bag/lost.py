@@ -74,6 +74,13 @@ class LostCounter:
             c = self.topics[topic] = GapCounter()
         return c.add(seq)
 
+    def first_loss(self, topic: str, seq) -> bool:
+        """:meth:`add`; True only when this sample shows the topic's first loss (for a warning, once)."""
+        if not self.add(topic, seq) or self.topics[topic].warned:
+            return False
+        self.topics[topic].warned = True
+        return True
+
     def counts(self) -> dict[str, int]:
         """topic -> messages lost, for every topic that had a message."""
         return {t: c.lost for t, c in sorted(self.topics.items())}

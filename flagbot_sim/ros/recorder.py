@@ -181,8 +181,7 @@ class Recorder:
 
     def _on_message(self, topic: str, data: bytes, info) -> None:
         info = info if isinstance(info, dict) else {}
-        if self.lost.add(topic, info.get("publication_sequence_number")) and not self.lost.topics[topic].warned:
-            self.lost.topics[topic].warned = True
+        if self.lost.first_loss(topic, info.get("publication_sequence_number")):
             self.node.get_logger().warning(f"messages lost on {topic} before they reached the recorder (the "
                                            "publisher's or this subscription's queue overflowed); counted at close")
         if not self.writer.write(topic, data, info.get("received_timestamp", 0) or time.time_ns()) \
