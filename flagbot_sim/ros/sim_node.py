@@ -334,7 +334,9 @@ class SimDevice:
         if s.error:
             self.recording_failed = True
         return (f"recording closed: {s.path}, {s.messages} messages on {len(s.topics)} topics, "
-                f"{s.duration:.1f} s, {s.size_bytes / 1024:.0f} KiB" + (f", ERROR {s.error}" if s.error else ""))
+                f"{s.duration:.1f} s, {s.size_bytes / 1024:.0f} KiB"
+                + (f", {sum(s.lost.values())} messages lost before reaching it" if any(s.lost.values()) else "")
+                + (f", ERROR {s.error}" if s.error else ""))
 
     def _check_recording(self) -> str:
         """The current recording's write error ('' if none). The recorder logs it itself, once."""
