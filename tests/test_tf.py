@@ -141,3 +141,55 @@ def test_tree_gives_fixed_joints_once_and_moving_joints_from_positions():
 def test_tree_refuses_what_it_cannot_read(text):
     with pytest.raises(UrdfError):
         TfTree(text)
+
+
+# ---------------------------------------------------------------------------------------------------- derivation
+def test_deriver_turns_a_namespaced_robots_topics_into_tf_once_per_stamp():
+    """What the recorder writes where tf2_msgs is missing: /bot1/odom and /bot1/head_pose of one step give one
+    world -> head, joint_states the moving joints once the URDF is known, robot_description the fixed joints
+    (stamped with the last stamp seen) and again only when it changes; an unreadable URDF is reported."""
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+
+    from flagbot_sim.ros.tf_derive import TfDeriver
+    from flagbot_sim.scene import load_scene
+    from flagbot_sim.urdf import robot_urdf
+
+    d = TfDeriver(lambda t: t if t.startswith("/") else "/bot1/" + t)
+    assert sorted(d.sources) == ["/bot1/head_pose", "/bot1/joint_states", "/bot1/odom", "/bot1/robot_description"]
+
+    def run(topic, msg):
+        return [(t, decode_tf_message(data), stamp) for t, data, stamp in d.derive(topic, serialize_message(msg), 5)]
+
+    pose = PoseStamped()
+    pose.header.stamp.sec, pose.header.stamp.nanosec, pose.header.frame_id = 2, 500, "map"
+    pose.pose.position.x, pose.pose.orientation.z, pose.pose.orientation.w = 0.25, 0.6, 0.8
+    assert run("/bot1/head_pose", pose) == []           # no child frame known yet (no odometry, no URDF)
+    assert run("/head_pose", pose) == []                 # another robot's topic
+    odom = Odometry()
+    odom.header, odom.child_frame_id, odom.pose.pose = pose.header, "bot1/head", pose.pose
+    expected = [("/tf", [Transform(2_000_000_500, "map", "bot1/head", (0.25, 0.0, 0.0), (0.0, 0.0, 0.6, 0.8))],
+                 2_000_000_500)]
+    assert run("/bot1/odom", odom) == expected
+    assert run("/bot1/head_pose", pose) == []           # the same step: not sent twice
+    joints = JointState(name=["head_spin", "flagella_spin", "motor"], position=[0.1, 0.2, 0.3])
+    joints.header.stamp.sec = 3
+    assert run("/bot1/joint_states", joints) == []      # no URDF yet
+    assert d.derive("/bot1/robot_description", b"\x00\x01\x00\x00garbage", 5) == []
+    urdf = robot_urdf(load_scene("design1", ["robot.n_flagella=2"]), "bot1/head")
+    ((topic, statics, stamp),) = run("/bot1/robot_description", String(data=urdf))
+    assert topic == "/tf_static" and stamp == 3_000_000_000
+    assert [(s.parent, s.child) for s in statics] == [("plate", "flagellum_0"), ("plate", "flagellum_1")]
+    assert run("/bot1/robot_description", String(data=urdf)) == []     # unchanged: nothing new
+    ((topic, moving, _),) = run("/bot1/joint_states", joints)
+    assert topic == "/tf" and [(t.parent, t.child) for t in moving] == [
+        ("bot1/head", "head_axis"), ("head_axis", "flagella"), ("bot1/head", "plate")]
+    assert moving[2].rotation == pytest.approx((-math.sin(0.15), 0.0, 0.0, math.cos(0.15)))
+    assert run("/bot1/robot_description", String(data="<robot><joint/></robot>")) == [] and d.tree is None
+    assert "robot_description" in d.error
+    only_tf = TfDeriver(tf_static=False)
+    assert only_tf.topics == ["/tf"] and only_tf.derive("/robot_description", serialize_message(String(data=urdf)),
+                                                        0) == []
