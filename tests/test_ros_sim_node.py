@@ -188,8 +188,11 @@ def test_robot_description_reaches_a_late_subscriber_with_the_joint_states_names
         ros.destroy_subscription(sub)
     root = ET.fromstring(got[-1].data)
     assert root.tag == "robot"
-    joints = {j.get("name") for j in root.iter("joint")}
+    # the moving joints are joint_states'; the fixed ones hold the flagellum bases (/tf_static)
+    joints = {j.get("name") for j in root.iter("joint") if j.get("type") != "fixed"}
     assert joints == set(lis.msgs["joints"][-1].name)
+    assert {j.get("name") for j in root.iter("joint") if j.get("type") == "fixed"} == {
+        f"flagellum_{i}_base" for i in range(load_scene(SCENE[0], SCENE[1]).robot.n_flagella)}
     children = {j.find("child").get("link") for j in root.iter("joint")}
     roots = {link.get("name") for link in root.iter("link")} - children
     assert roots == {lis.msgs["odom"][-1].child_frame_id}      # the URDF hangs from odometry's child frame
