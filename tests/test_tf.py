@@ -193,3 +193,20 @@ def test_deriver_turns_a_namespaced_robots_topics_into_tf_once_per_stamp():
     only_tf = TfDeriver(tf_static=False)
     assert only_tf.topics == ["/tf"] and only_tf.derive("/robot_description", serialize_message(String(data=urdf)),
                                                         0) == []
+
+
+def test_ros_message_holds_the_transforms(monkeypatch):
+    """What sim_node publishes where tf2_msgs is installed: the installed class (here a stand-in, no wheel exists)
+    filled with geometry_msgs/TransformStamped, field for field the transforms the recorder would encode."""
+    from flagbot_sim.ros import tf_derive
+
+    class TFMessage:
+        def __init__(self):
+            self.transforms = []
+    monkeypatch.setattr(tf_derive, "tf_message_class", lambda: TFMessage)
+    msg = tf_derive.ros_tf_message(TRANSFORMS)
+    assert isinstance(msg, TFMessage)
+    assert [Transform(t.header.stamp.sec * 10 ** 9 + t.header.stamp.nanosec, t.header.frame_id, t.child_frame_id,
+                      (t.transform.translation.x, t.transform.translation.y, t.transform.translation.z),
+                      (t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
+                       t.transform.rotation.w)) for t in msg.transforms] == TRANSFORMS
