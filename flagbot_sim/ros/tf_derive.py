@@ -10,6 +10,7 @@ written with the CDR encoder of :mod:`flagbot_sim.bag.tf`. The transforms are th
 """
 from __future__ import annotations
 
+import collections
 import functools
 import importlib
 import threading
@@ -23,6 +24,7 @@ from .. import topics as names
 TF_QOS = QosInfo(depth=100)
 #: /tf_static: tf2's StaticTransformBroadcaster (reliable, transient local, keep last 1): a late subscriber gets it
 TF_STATIC_QOS = QosInfo(depth=1, durability="transient_local")
+_RECENT = 64        # world -> head stamps remembered, to send each once
 NO_TF2 = ("tf2_msgs is not installed (no wheel on PyPI; on a ROS install: apt install ros-jazzy-tf2-msgs)")
 
 
@@ -66,8 +68,7 @@ class TfDeriver:
 
     :meth:`derive` takes each recorded message (topic, CDR bytes) and returns ``(topic, CDR bytes, stamp_ns)``
     for the TF messages it implies: ``odom`` or ``head_pose`` -> /tf world -> head (the header's frame to the
-    odometry's child frame, or the URDF's root link, once either is known; a pose stamp already sent is not sent
-    again), ``joint_states`` -> /tf of the moving joints, ``robot_description`` -> /tf_static of the fixed joints
+    odometry's child frame, or the URDF's root link, once either is known; a stamp is sent once), ``joint_states`` -> /tf of the moving joints, ``robot_description`` -> /tf_static of the fixed joints
     (again whenever the description changes). Stamps are the messages' header stamps (simulation time); a
     /tf_static message takes the last stamp seen.
     """
@@ -85,7 +86,10 @@ class TfDeriver:
         self.tree: TfTree | None = None
         self._description_text = None
         self._child: str | None = None            # odometry's child frame
-        self._last_head: tuple | None = None       # (stamp, parent, child) of the last world -> head sent
+        # (stamp, parent, child) of the world -> head transforms sent lately: odometry and head pose of one step
+        # carry the same pose, and either may come first (or a step late: two topics, two queues)
+        self._sent_head: set[tuple] = set()
+        self._sent_order: collections.deque = collections.deque()
         self._stamp = 0
         self.error = ""                            # why the last robot_description could not be read
         self._lock = threading.Lock()
@@ -126,9 +130,13 @@ class TfDeriver:
     def _head(self, stamp: int, frame: str, pose):
         child = self._child or (self.tree.root if self.tree is not None else None)
         self._stamp = max(self._stamp, stamp)
-        if not self.tf or child is None or not frame or (stamp, frame, child) == self._last_head:
+        key = (stamp, frame, child)
+        if not self.tf or child is None or not frame or key in self._sent_head:
             return []
-        self._last_head = (stamp, frame, child)
+        self._sent_head.add(key)
+        self._sent_order.append(key)
+        if len(self._sent_order) > _RECENT:
+            self._sent_head.discard(self._sent_order.popleft())
         return [(names.TF, [head_transform(stamp, frame, child, pose)])]
 
     def _pose(self, msg, _):
