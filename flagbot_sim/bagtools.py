@@ -118,6 +118,8 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
                            f"{r.path}: the recording holds no message: nothing to summarise")
         meta = r.run_metadata()
         topics = r.topics
+        from .bag.lost import LOST_METADATA_NAME, counts_from_record
+        lost = counts_from_record(r.metadata_named(LOST_METADATA_NAME))   # None: not counted (an older recorder)
         cmd_topic = find_topic(topics, CMD_OMEGA, namespace)
         ns = namespace
         if ns is None:
@@ -179,7 +181,10 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
             "path": str(r.path), "size_bytes": rep.size, "messages": rep.messages, "duration": rep.duration,
             "closed": rep.closed, "ok": rep.ok, "loss": rep.describe_loss(), "time_axis": "sim" if use_sim else "log",
             "namespace": ns or "",
+            # messages that never reached the recorder (gaps in the publishers' sequence numbers); None: not counted
+            "lost_in_transport": sum(lost.values()) if lost is not None else None,
             "topics": [{"topic": t.topic, "type": t.type_name, "count": t.count,
+                        "lost": lost.get(t.topic, 0) if lost is not None else None,
                         "rate_hz": (t.count - 1) / ((t.last_log_ns - t.first_log_ns) * 1e-9)
                         if t.count > 1 and t.last_log_ns > t.first_log_ns else None}
                        for t in sorted(topics.values(), key=lambda t: t.topic)],
@@ -199,14 +204,23 @@ def format_summary(s: dict) -> str:
              f"{s['size_bytes'] / 1024:.1f} KiB, {'closed properly' if s['closed'] else 'NOT closed properly'}"]
     if s["loss"]:
         lines.append("  LOST: " + s["loss"])
+    lost = s.get("lost_in_transport")
+    if lost is None:
+        lines.append("  messages lost before reaching the recorder: not counted (recorded without that count)")
+    elif lost:
+        lines.append(f"  LOST before reaching the recorder: {lost} messages (gaps in the publishers' sequence "
+                     f"numbers; per topic below)")
+    else:
+        lines.append("  no message lost before reaching the recorder")
     m = s["metadata"]
     if m:
         lines.append(f"  recorded by flagbot_sim {m['package_version']} {m['source_revision']} at {m['created_utc']}; "
                      f"scene {'stored' if m['scene'] else 'not stored'}, {m['parameters']} parameters")
-    lines.append(f"  {'topic':34s} {'type':38s} {'count':>8s} {'rate Hz':>9s}")
+    lines.append(f"  {'topic':34s} {'type':38s} {'count':>8s} {'rate Hz':>9s} {'lost':>6s}")
     for t in s["topics"]:
         rate = f"{t['rate_hz']:9.2f}" if t["rate_hz"] is not None else " " * 9
-        lines.append(f"  {t['topic']:34s} {t['type']:38s} {t['count']:8d} {rate}")
+        lines.append(f"  {t['topic']:34s} {t['type']:38s} {t['count']:8d} {rate} "
+                     f"{t['lost'] if t['lost'] is not None else '-':>6}")
     if s["steps"]:
         lines.append(f"omega_T steps (steady = mean over the last {100 * s['tail']:.0f} % of each step; "
                      f"time = {s['time_axis']} time, s):")

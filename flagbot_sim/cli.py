@@ -309,6 +309,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except BrokenPipeError:
         return broken_pipe_exit()
+    except KeyboardInterrupt:      # Ctrl-C anywhere else (e.g. during the first compile): one line, not numba's stack
+        print(f"flagbot {args.command}: interrupted", file=sys.stderr)
+        return 130
     except SceneError as exc:
         print(f"error: {one_line(exc)}", file=sys.stderr)
         return 2

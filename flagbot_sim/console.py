@@ -50,8 +50,8 @@ def ros_entry(module: str, prog: str):
                 raise
             # rclpy is there but its C libraries do not load (e.g. the wheels' library path is not set up)
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            print(f"error: {prog}: ROS 2 is installed but cannot be loaded: {first} (see the README's Install "
-                  "section: the ROS 2 wheels set their library path when Python starts)", file=sys.stderr)
+            print(f"error: {prog}: ROS 2 is installed but cannot be loaded: {first} (see docs/install.md: "
+                  "the ROS 2 wheels set their library path when Python starts)", file=sys.stderr)
             return EXIT_CODE                    # the [ros] extra is there but unusable: as if it were missing
         try:
             return mod.main()

@@ -641,6 +641,19 @@ def builtin_scenes() -> list[str]:
                   if p.name.endswith(".toml"))
 
 
+def portable_source(source: str | None) -> str | None:
+    """A scene's source as written into shared results: a built-in scene as ``flagbot_sim/scenes/<name>.toml``
+    (the same on every checkout and install), any other file as given."""
+    if not source:
+        return source
+    p = Path(source)
+    builtin = Path(str(resources.files("flagbot_sim.scenes")))
+    try:
+        return "flagbot_sim/scenes/" + p.resolve().relative_to(builtin.resolve()).as_posix()
+    except (ValueError, OSError):
+        return source
+
+
 def resolve_scene_path(name_or_path: str | Path) -> Path:
     """The file a scene name or path means: a built-in scene's name, or an existing regular file (never a
     directory, FIFO or device: reading one would fail or block)."""

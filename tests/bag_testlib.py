@@ -4,13 +4,15 @@ Run as a script it is a small ROS node for the tests' other processes:
 
     python tests/bag_testlib.py publish --ns /t --rounds 20 --rate 20 --log out.jsonl
         one message of each flagbot message type per round on the default flagbot topics in namespace --ns,
-        after every publisher has a subscriber (the recorder); each publish is logged (topic, round, wall time)
+        after every publisher has a subscriber (the recorder); each publish is logged (topic, round, wall time just
+        before and just after the publish call)
     python tests/bag_testlib.py stream --topic /t/omega_h --rate 100 --log out.jsonl
         Float64 k on --topic at --rate Hz until SIGINT/SIGTERM, each publish logged with its wall time
     python tests/bag_testlib.py latched --topic /t/latched
         one TRANSIENT_LOCAL message, published before anyone listens, plus a BEST_EFFORT stream on --topic2
     python tests/bag_testlib.py clockwatch --topic /t/speed --count 20 --out out.json
-        a use_sim_time node: for each Float64 received, [data, node clock (sim time) ns, wall time ns]
+        a use_sim_time node: {"messages": for each Float64 received [data, node clock (sim time) ns, wall time ns,
+        receive timestamp ns], "clocks": for each /clock received [clock ns, receive timestamp ns]}
     python tests/bag_testlib.py selfrecord --ns /t --count 10 --out out.mcap
         a node that records its own topic with an in-process flagbot_sim.ros.recorder.Recorder
     python tests/bag_testlib.py clocklog --topic /clock --log out.txt
@@ -335,8 +337,11 @@ def _publish(node, args):
         while time.monotonic() < target:
             time.sleep(min(0.005, target - time.monotonic()))
         for name, p in pubs.items():
-            p.publish(make_message(name, k))
-            log.write(json.dumps({"topic": full_topic(args.ns, name), "k": k, "wall_ns": time.time_ns()}) + "\n")
+            msg = make_message(name, k)
+            before = time.time_ns()          # no delivery can be stamped before this, however the OS schedules
+            p.publish(msg)
+            log.write(json.dumps({"topic": full_topic(args.ns, name), "k": k, "before_ns": before,
+                                  "wall_ns": time.time_ns()}) + "\n")
     log.close()
     for p in pubs.values():
         p.wait_for_all_acked(Duration(seconds=5.0))
@@ -379,15 +384,22 @@ def _clockwatch(node, args):
     from rclpy.parameter import Parameter
     from std_msgs.msg import Float64
     node.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, True)])
-    got = []
+    from rosgraph_msgs.msg import Clock
+    got, clocks = [], []
+    # besides the node's (sim time) clock at the callback, the middleware's receive timestamps of every /clock and
+    # every message: they are taken on arrival, in arrival order, so a callback run late (this process starved)
+    # does not change them
     node.create_subscription(
-        Float64, args.topic, lambda m: got.append((m.data, node.get_clock().now().nanoseconds, time.time_ns())), 100)
+        Float64, args.topic, lambda m, info: got.append((m.data, node.get_clock().now().nanoseconds, time.time_ns(),
+                                                         info["received_timestamp"])), 100)
+    node.create_subscription(Clock, "/clock", lambda m, info: clocks.append(
+        (m.clock.sec * 1_000_000_000 + m.clock.nanosec, info["received_timestamp"])), 1000)
     print("clockwatch ready", flush=True)
     end = time.monotonic() + args.timeout
     while rclpy.ok() and len(got) < args.count and time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
     with open(args.out, "w") as f:
-        json.dump(got, f)
+        json.dump({"messages": got, "clocks": clocks}, f)
 
 
 def _selfrecord(node, args):

@@ -182,7 +182,7 @@ def _measure(kind: str, moment: str, tmp: str | Path, seed: int | None, warmup: 
         rec.kill()
     from flagbot_sim.bag import scan
     rep = scan(out)
-    inner = [d for d in rep.damage if d.kind not in ("truncated", "no-summary")]
+    inner = [d for d in rep.damage if d.kind not in ("truncated", "no-summary", "summary")]
     if inner or rep.closed:
         raise AssertionError(f"a killed recording should be cut off at its end, nothing else: {rep.describe_loss()}")
     _recover(out, fixed)
@@ -201,10 +201,14 @@ def _measure(kind: str, moment: str, tmp: str | Path, seed: int | None, warmup: 
             sims = [m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _, m in rows]
             if not sims or sims != sorted(sims):
                 raise AssertionError("recovered /clock is empty or not monotonic")
-            gap = max(b - a for a, b in zip(sims, sims[1:])) * 1e-9
-            if gap > 0.3:                # 50 Hz publishing (a busy machine can delay a few timer ticks)
-                raise AssertionError(f"recovered /clock has a {gap:.3f} s gap")
             pub = [int(line.split()[0]) for line in open(log) if line.strip()]
+            # nothing in the middle lost: every /clock the listener got within the recovered span is recovered (by
+            # content: a bound on the gap between ticks is one a busy machine breaks without losing anything)
+            have = set(sims)
+            missing = [t for t in pub if sims[0] <= t <= sims[-1] and t not in have]
+            if missing:
+                raise AssertionError(f"recovered /clock lacks {len(missing)} ticks the listener got, from "
+                                     f"{missing[0] * 1e-9:.3f} s")
             loss_sim = (max(pub) - sims[-1]) * 1e-9
             loss_wall = (t_kill - rows[-1][0]) * 1e-9
             loss = max(loss_sim, loss_wall)

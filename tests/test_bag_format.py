@@ -20,6 +20,7 @@ from flagbot_sim import bag
 from flagbot_sim.bag import BagReader, BagWriter, NotMcapError, RunMetadata, recover, scan
 
 SHARE = Path(sys.prefix) / "share"
+ROOT_BAGS = Path(__file__).resolve().parents[1] / "bags"
 
 
 class FakeClock:
@@ -498,3 +499,139 @@ def test_recording_to_a_directory_fifo_or_device_is_refused_and_writes_nothing_b
         assert words in str(err.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe", "runs"] and not list(d.iterdir())
     assert not os.path.exists("/dev/null.mcap")
+
+
+def test_writer_refuses_a_symbolic_link_to_a_missing_or_irregular_target_and_never_follows_one(tmp_path,
+                                                                                               monkeypatch):
+    """A dangling link (at the name given or at the '.mcap' name made of it) would create its target elsewhere; a
+    link to a directory or FIFO is no regular file: all refused by name, nothing created. Without overwrite the
+    file is opened O_EXCL ("xb"), so a link made after the checks (a race) is refused too, its target untouched."""
+    import os
+    from flagbot_sim.bag.writer import BagWriteError
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    target = elsewhere / "target.mcap"
+    fifo = elsewhere / "pipe"
+    os.mkfifo(fifo)
+    (tmp_path / "link.mcap").symlink_to(target)
+    (tmp_path / "bare").symlink_to(target)
+    (tmp_path / "run.mcap").symlink_to(target)
+    (tmp_path / "dir.mcap").symlink_to(elsewhere)
+    (tmp_path / "fifo.mcap").symlink_to(fifo)
+    for name, words in (("link.mcap", "which does not exist"), ("bare", "which does not exist"),
+                        ("run", "which does not exist"), ("dir.mcap", "not a regular file"),
+                        ("fifo.mcap", "not a regular file")):
+        for overwrite in (False, True):
+            with pytest.raises(BagWriteError) as err:
+                BagWriter(tmp_path / name, overwrite=overwrite)
+            assert "symbolic link" in str(err.value) and words in str(err.value), (name, str(err.value))
+            assert str(tmp_path) in str(err.value)
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["pipe"]
+    # the race: the checks pass, then a link appears before the open
+    import builtins
+
+    from flagbot_sim.bag import writer as writer_module
+    race = tmp_path / "race.mcap"
+
+    def link_appears(file, mode="r", *a, **kw):
+        if Path(file) == race:
+            race.symlink_to(target)
+        return builtins.open(file, mode, *a, **kw)
+    monkeypatch.setattr(writer_module, "open", link_appears, raising=False)
+    with pytest.raises(BagWriteError, match="File exists"):
+        BagWriter(race)
+    assert not target.exists()
+    monkeypatch.undo()
+    # a link to an existing regular file is that file: refused as existing, replaced only with overwrite
+    target.write_bytes(b"keep me")
+    with pytest.raises(BagWriteError, match="it exists"):
+        BagWriter(tmp_path / "link.mcap")
+    assert target.read_bytes() == b"keep me"
+    BagWriter(tmp_path / "link.mcap", overwrite=True).close()
+    assert target.read_bytes().startswith(bag.format.MCAP_MAGIC)
+
+
+def test_bag_recover_writes_small_chunks_so_a_flipped_bit_anywhere_loses_at_most_one(tmp_path):
+    """bag-recover wrote a single chunk: one flipped bit of the recovered file usually lost everything on a second
+    recovery. It now writes chunks of at most 0.1 s of log time, with CRCs and the schemas and channels also
+    outside chunks; a single-bit flip at any of many seeded random positions of a recovered real recording loses
+    at most one chunk's messages, and the report counts the loss exactly, even when the summary is the part hit
+    (the recovered file states its message count at its start)."""
+    import random
+    from mcap.reader import make_reader as mk
+    src = ROOT_BAGS / "design2_n2_steps.mcap"
+    rec = tmp_path / "rec.mcap"
+    rep = recover(src, rec)
+    n = rep.messages
+    assert scan(rec).ok and scan(rec).messages == n > 1000
+    with open(rec, "rb") as f:
+        summary = mk(f).get_summary()
+    chunks = summary.chunk_indexes
+    duration = (rep.end_ns - rep.start_ns) * 1e-9
+    assert len(chunks) >= duration / 0.1 * 0.9, (len(chunks), duration)
+    assert all(c.message_end_time - c.message_start_time < 0.1e9 for c in chunks)
+    biggest = max(_messages_in_chunks(rec))
+    assert sum(_messages_in_chunks(rec)) == n and biggest < n / 20
+    data = rec.read_bytes()
+    rng = random.Random(20_5)
+    flipped = tmp_path / "flipped.mcap"
+    worst = 0
+    for _ in range(120):
+        pos, bit = rng.randrange(len(data)), rng.randrange(8)
+        d = bytearray(data)
+        d[pos] ^= 1 << bit
+        flipped.write_bytes(bytes(d))
+        again = scan(flipped)
+        lost = n - again.messages
+        assert 0 <= lost <= biggest, (pos, bit, again.describe_loss())
+        assert again.lost_messages == lost, (pos, bit, again.describe_loss())
+        if lost:
+            assert f"{lost} of {n} messages lost" in again.describe_loss()
+        worst = max(worst, lost)
+    assert worst > 0                       # some flips did hit a chunk's data
+    # a flip in the summary: the count stated at the start still makes the loss exact (0 here)
+    d = bytearray(data)
+    d[_summary_start(data)] ^= 0x40             # the opcode of the summary's first record: nothing after it is read
+    flipped.write_bytes(bytes(d))
+    again = scan(flipped)
+    assert again.summary_messages is None and again.lost_messages == 0 and again.messages == n
+    # and the CLI: a flipped chunk, the second recovery's report line says how many messages were lost
+    d = bytearray(data)
+    c = chunks[len(chunks) // 2]
+    d[c.chunk_start_offset + c.chunk_length - 100] ^= 0x04
+    flipped.write_bytes(bytes(d))
+    r = flagbot("bag-recover", str(flipped), "-o", str(tmp_path / "again.mcap"), timeout=120)
+    lost = n - scan(tmp_path / "again.mcap").messages
+    assert r.returncode == 0 and 0 < lost <= biggest, r.stdout + r.stderr
+    assert f"{lost} of {n} messages lost" in r.stdout, r.stdout
+
+
+def _messages_in_chunks(path):
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+    with open(path, "rb") as f:
+        return [sum(isinstance(r, Message) for r in breakup_chunk(c))
+                for c in StreamReader(f, emit_chunks=True).records if isinstance(c, Chunk)]
+
+
+def test_a_corrupt_chunk_is_counted_from_its_message_indexes_when_the_summary_is_gone_too(tmp_path):
+    """Two damages, a chunk and the summary: the messages the lost chunk held are still counted exactly, from the
+    message index records the writer put after it."""
+    src = tmp_path / "full.mcap"
+    write_stream_bag(src).close()
+    data = bytearray(src.read_bytes())
+    chunks = _chunks(src)
+    c, n_lost = chunks[5]
+    data[c.chunk_start_offset + c.chunk_length - 20] ^= 0x55
+    data[_summary_start(bytes(data))] = 0x7E      # the first summary record's opcode: the summary is unreadable
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    rep = scan(bad)
+    assert rep.summary_messages is None and rep.messages == 1000 - n_lost
+    assert rep.damage[0].messages == n_lost and rep.lost_messages == n_lost
+    assert f"{n_lost} of 1000 messages lost" in rep.describe_loss()
+
+
+def _summary_start(data: bytes) -> int:
+    (summary_start,) = struct.unpack_from("<Q", data, len(data) - 8 - 29 + 9)   # the footer's first field
+    return summary_start

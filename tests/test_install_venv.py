@@ -6,7 +6,7 @@ that venv, as a user runs them: ``flagbot run`` (compiled kernels), a 2-point sw
 made by ``lib/flagbot_sim/sim_node`` (found as ``ros2 run`` finds it, with a fake python3 first on PATH) and read
 back by ``flagbot bag-summary``, and a missing extra's one-line message.
 
-Slow (~1 min: mostly pip unpacking and numba's first compile; README "Install" has the figures). CI runs it; set
+Slow (~1 min: mostly pip unpacking and numba's first compile; docs/install.md has the figures). CI runs it; set
 FLAGBOT_SKIP_INSTALL_TEST=1 to skip it locally. pip's cache makes repeated runs download nothing.
 """
 import csv

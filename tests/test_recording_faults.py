@@ -95,8 +95,16 @@ def test_standalone_record_on_a_full_disk_logs_one_error_and_exits_non_zero(tmp_
     assert code == 0, text
     with BagReader(fixed) as rd:
         got = [int(rd.decode(m).data) for m in rd.messages()]
-    # contiguous from the first recorded message; what was lost is at most the last flush interval's worth
-    assert got == list(range(got[0], got[0] + len(got)))
+    # in order from the first recorded message; what was lost at the end is at most the last flush interval's
+    # worth. A gap in the middle is a message that never reached the recorder (on a loaded machine the recorder's
+    # process can be descheduled long enough for DDS to drop some: 4 of a 2000 Hz stream were once missing): the
+    # recorder writes every message it takes, so any such gap must be among the losses it counted and printed
+    # (docs/recording.md, "Lost messages")
+    assert got == sorted(set(got))
+    missing = got[-1] - got[0] + 1 - len(got)
+    line = [ln for ln in output.splitlines() if ln.strip().startswith("/t/omega_h")][-1]
+    reported = int(line.split()[3]) if line.endswith(" lost") else 0
+    assert missing <= reported, (missing, line)
     assert written - len(got) <= 2000 * 0.25, (written, len(got))
 
 
@@ -108,3 +116,25 @@ def test_standalone_record_refuses_a_target_it_cannot_write(tmp_path):
     assert f"error: cannot record to {tmp_path / 'typo' / 'run.mcap'}: directory {tmp_path / 'typo'} does not exist" \
         in r.stderr and "Traceback" not in r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_standalone_record_refuses_a_dangling_symbolic_link(tmp_path):
+    """`flagbot record -o LINK` and the `record` script with LINK -> a missing file: one `error:` line naming the
+    link, exit 2, the target not created (it used to be written through the link)."""
+    from cli_helpers import flagbot
+    target = tmp_path / "elsewhere" / "target.mcap"
+    target.parent.mkdir()
+    link = tmp_path / "run.mcap"
+    link.symlink_to(target)
+    for cmd in (("record",), ("-m", "flagbot_sim.ros.recorder")):
+        if cmd[0] == "record":
+            r = flagbot("record", "-o", str(link), timeout=120)
+            code, err = r.returncode, r.stderr
+        else:
+            p = ChildProcess(*cmd, "-o", str(link))
+            code, err = p.wait(timeout=120)
+        assert code == 2, err
+        lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
+        assert len(lines) == 1 and str(link) in lines[0] and "symbolic link" in lines[0], err
+        assert "Traceback" not in err
+        assert not target.exists() and link.is_symlink()

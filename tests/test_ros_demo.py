@@ -166,3 +166,32 @@ def test_the_status_says_what_each_node_is_doing_from_its_log():
     assert start_phase("sim_node", log, ready=False) == "started, connecting"
     assert start_phase("sim_node", log, ready=True) == "ready"
     assert start_phase("beam_node", "anything", ready=False) == "starting"
+
+
+def test_the_demo_takes_a_beam_prediction_only_whole_whatever_order_its_three_topics_deliver_in():
+    """beam_node publishes speed, omega_h, omega_t at each tick on depth-1 queues; the monitor takes them in any
+    order the executor picks. Every prediction it confirms must be one tick's three values, never a mix (a mix
+    once put 150 rpm's speed beside 100 rpm's split), and a prediction that stays is confirmed."""
+    import random
+    from flagbot_sim.ros.demo import BeamConfirm
+    order = ("v", "h", "t")
+    for seed in range(300):
+        rng = random.Random(seed)
+        preds = [(float(k), 10.0 + k, 100.0 + k) for k in range(4)]     # (h, t, v) of each command
+        slot = {}                                                        # topic -> unread value (depth 1)
+        confirm, got = BeamConfirm(), []
+        for tick in range(60):
+            h, t, v = preds[min(tick // 15, 3)]
+            for key, value in zip(order, (v, h, t)):
+                slot[key] = value                                        # the newer message replaces the unread one
+                while slot and rng.random() < 0.5:                       # the executor takes some, in any order
+                    k = rng.choice(sorted(slot))
+                    snap = confirm.feed(k, slot.pop(k))
+                    if snap is not None:
+                        got.append(snap)
+        for k in sorted(slot):
+            snap = confirm.feed(k, slot.pop(k))
+            if snap is not None:
+                got.append(snap)
+        assert set(got) <= set(preds), (seed, set(got) - set(preds))
+        assert preds[-1] in got, seed

@@ -15,8 +15,9 @@ def test_time_limited_work_is_refused_when_it_overruns_and_blocks_nothing_after(
     release = threading.Event()
     t0 = time.monotonic()
     with pytest.raises(SceneError, match="took longer than 0.2 s"):
-        limited.run(lambda: release.wait(10))
-    assert time.monotonic() - t0 < 1.0                 # the caller got its answer at the limit
+        limited.run(lambda: release.wait(60))
+    # the caller got its answer at the limit, not when the work ended (60 s later): a bound no load can reach
+    assert time.monotonic() - t0 < 30.0 and not release.is_set()
     with pytest.raises(SceneError, match="still running"):
         limited.run(lambda: 1)                         # the overrunning work has not finished: refuse more
     release.set()

@@ -147,7 +147,9 @@ def test_shutdown_is_quick_and_leaves_the_recording_complete(ros, tmp_path, sig)
           f"(load average {os.getloadavg()[0]:.1f})")
     assert proc.proc.returncode == 0 and "Traceback" not in out, out
     assert teardown_cpu < TEARDOWN_CPU, (teardown_cpu, wall)
-    assert wall < 10.0                     # generous: the figure that matters is printed, and the CPU bounded
+    # the CPU bound above is the load-independent check; wall time only catches a hang (it was 4.8-8.7 s, once
+    # more than 15 s, at load 17: a bound of 10 s was one that scheduling could break)
+    assert wall < 60.0, wall
     # the recording was closed properly, holds what it says it holds, and everything up to the signal
     m = re.search(r"recording closed: (\S+), (\d+) messages on (\d+) topics", out)
     assert m and m.group(1) == str(path), out

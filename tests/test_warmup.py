@@ -189,3 +189,42 @@ print(repr((mine, theirs, lines, sorted(here))))
 def _cache_names(group: str) -> set[str]:
     """'module.function' of the group's kernels as numba names them (the rft kernel is effects._rft_py)."""
     return {k if k != "effects.rft" else "effects._rft_py" for k in warmup.GROUPS[group].kernels}
+
+
+@pytest.mark.parametrize("argv,code", [(["-m", "flagbot_sim", "run", "design1", "--duration", "1"], 130),
+                                       (["-m", "flagbot_sim.ros.sim_node"], 0)])
+def test_ctrl_c_during_the_first_compile_stops_it_with_one_line_and_no_helper_left(tmp_path, argv, code):
+    """SIGINT while the kernels compile ends the process then (not after the compile), without numba's
+    traceback, and the helper process that compiles half of the groups goes with it."""
+    import signal
+    import time
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    p = subprocess.Popen([sys.executable, *argv], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.STDOUT, text=True)
+    lines = []
+    for line in p.stdout:                     # wait for the compile to start, then interrupt it
+        lines.append(line)
+        if "compiling kernels (first run only" in line:
+            break
+    time.sleep(0.3)
+    helpers = [pid for pid in os.listdir("/proc") if pid.isdigit() and _is_helper_of(pid, p.pid)]
+    assert helpers or "in 2 processes" not in lines[-1], lines
+    p.send_signal(signal.SIGINT)
+    out = "".join(lines) + p.communicate(timeout=120)[0]
+    assert p.returncode == code, out
+    assert "Traceback" not in out and "kernels compiled in" not in out, out
+    if code == 130:
+        assert out.rstrip().endswith("flagbot run: interrupted"), out
+    deadline = time.monotonic() + 30
+    while any(os.path.exists(f"/proc/{pid}") for pid in helpers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in helpers), helpers
+
+
+def _is_helper_of(pid: str, parent: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+    return int(stat.rsplit(")", 1)[1].split()[1]) == parent and b"warmup" in cmd

@@ -11,6 +11,7 @@ above it in this list:
 - :mod:`.metadata` :class:`RunMetadata` (scene, parameters, version) and rosbag2's own metadata record;
 - :mod:`.writer`   :class:`BagWriter`: chunked, compressed, flushed often enough to survive a SIGKILL;
 - :mod:`.reader`   :class:`BagReader`, :func:`scan` and :func:`recover`, record by record, tolerating damage;
+- :mod:`.lost`     messages lost before they reached the recorder, from the publishers' sequence numbers;
 - :mod:`.lookup`   topics by relative name (:func:`find_topic`), log time -> simulation time (:class:`SimTimeMap`),
   a decoded message's header stamp in seconds (:func:`header_seconds`).
 """

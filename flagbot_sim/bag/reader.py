@@ -35,17 +35,20 @@ from .qos import QosInfo, qos_from_yaml
 @dataclass
 class Damage:
     """One unreadable stretch of a file."""
-    kind: str            # truncated | corrupt-chunk | unreadable | no-summary (cut between records)
+    kind: str            # truncated | corrupt-chunk | unreadable | no-summary (cut between records) | summary
     offset: int          # first byte of the damaged stretch
     length: int          # bytes lost
     detail: str
     log_start_ns: int | None = None   # log-time range of the lost chunk, when its header survived
     log_end_ns: int | None = None
+    messages: int | None = None       # messages lost in this stretch, when known (a chunk's message indexes)
 
     def describe(self, t0_ns: int | None = None) -> str:
         if self.kind == "no-summary":
             return f"file ends after a complete record at byte {self.offset} ({self.detail})"
         s = f"{self.kind} at byte {self.offset}: {self.length} bytes lost ({self.detail})"
+        if self.messages is not None:
+            s += f", {self.messages} messages"
         if self.log_start_ns is not None and self.log_end_ns is not None and self.log_end_ns >= self.log_start_ns:
             if t0_ns is not None:
                 s += (f"; messages logged {(self.log_start_ns - t0_ns) * 1e-9:.3f}-"
@@ -81,6 +84,7 @@ class ScanReport:
     data_end: bool = False           # the data section was terminated (writer got to finish())
     closed: bool = False             # summary, footer and closing magic present: the file was closed properly
     summary_messages: int | None = None  # message count in the summary's statistics, when it survived
+    expected_messages: int | None = None  # message count the file says it holds up front (bag-recover writes it)
     damage: list[Damage] = field(default_factory=list)
 
     @property
@@ -96,11 +100,24 @@ class ScanReport:
         return sum(d.length for d in self.damage)
 
     @property
+    def total_messages(self) -> int | None:
+        """How many messages the file held when written: from the summary's statistics, else from the count a
+        recovered file states at its start, else from the damaged chunks' message indexes when every lost stretch
+        has one and the data section ends properly; None when unknown."""
+        if self.summary_messages is not None:
+            return self.summary_messages
+        if self.expected_messages is not None:
+            return self.expected_messages
+        data_damage = [d for d in self.damage if d.kind != "summary"]
+        if self.data_end and all(d.messages is not None for d in data_damage):
+            return self.messages + sum(d.messages for d in data_damage)
+        return None
+
+    @property
     def lost_messages(self) -> int | None:
-        """Exact count when the summary survived, else unknown (None)."""
-        if self.summary_messages is None:
-            return None
-        return max(0, self.summary_messages - self.messages)
+        """Exact count when :attr:`total_messages` is known, else None."""
+        total = self.total_messages
+        return None if total is None else max(0, total - self.messages)
 
     def describe_loss(self) -> str:
         """One paragraph a user can act on; '' for an intact file."""
@@ -114,7 +131,7 @@ class ScanReport:
             parts.append(d.describe(self.start_ns))
         lost = self.lost_messages
         if lost is not None:
-            parts.append(f"{lost} of {self.summary_messages} messages lost")
+            parts.append(f"{lost} of {self.total_messages} messages lost")
         elif self.damage:
             parts.append("number of lost messages unknown (no summary)")
         if self.messages:
@@ -320,6 +337,7 @@ class BagReader:
                     pos += 9 + length
                 except _BadRecord:
                     pass
+        after_chunk = False          # a chunk was seen (messages are then inside chunks)
         while pos < n:
             if n - pos < 9:
                 rep.damage.append(Damage("truncated", pos, n - pos, "file ends inside a record header"))
@@ -352,11 +370,12 @@ class BagReader:
                 pos = nxt
                 continue
             if op == Opcode.CHUNK:
+                after_chunk = True
                 try:
                     inner = _chunk_records(rec)
                 except _BadRecord as exc:
                     rep.damage.append(Damage("corrupt-chunk", pos, 9 + length, str(exc),
-                                             rec.message_start_time, rec.message_end_time))
+                                             rec.message_start_time, rec.message_end_time, self._indexed(end)))
                     pos = end
                     continue
                 pos = end
@@ -366,9 +385,40 @@ class BagReader:
                 rep.data_end = True
                 self._read_summary(end, rep)
                 return
+            if op == Opcode.MESSAGE and after_chunk and self._index_shaped(pos + 9, length):
+                # a message index (0x07) whose opcode bit flipped to a message (0x05): both start with a channel
+                # id, and the index's layout makes it parse; a chunked file has no messages outside its chunks
+                rep.damage.append(Damage("unreadable", pos, 9 + length, "a message index record with a damaged "
+                                                                         "opcode", messages=0))
+                pos = end
+                continue
+            after_chunk = after_chunk or op == Opcode.CHUNK
             if op in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.METADATA, Opcode.ATTACHMENT):
                 yield rec
             pos = end
+
+    def _index_shaped(self, body: int, length: int) -> bool:
+        """The record body at ``body`` has a message index's layout (channel id, then an array of 16-byte
+        entries filling the rest)."""
+        if length < 6:
+            return False
+        (nbytes,) = struct.unpack_from("<I", self._buf, body + 2)
+        return nbytes % 16 == 0 and 6 + nbytes == length
+
+    def _indexed(self, pos: int) -> int | None:
+        """Messages listed by the message index records that follow a chunk (from ``pos``, its end), None without
+        any: how many a corrupt chunk held."""
+        buf, n, count, seen = self._buf, self.size, 0, False
+        while n - pos >= 15:
+            op, length = _REC.unpack_from(buf, pos)
+            if op != Opcode.MESSAGE_INDEX or pos + 9 + length > n or length < 6:
+                break
+            if not self._index_shaped(pos + 9, length):
+                break
+            count += (length - 6) // 16
+            seen = True
+            pos += 9 + length
+        return count if seen else None
 
     def _read_summary(self, pos: int, rep: ScanReport) -> None:
         buf, n = self._buf, self.size
@@ -378,7 +428,7 @@ class BagReader:
             op, length = _REC.unpack_from(buf, pos)
             end = pos + 9 + length
             if op not in _SUMMARY_OPCODES or end > n:
-                rep.damage.append(Damage("unreadable", pos, n - pos, "summary section damaged"))
+                rep.damage.append(Damage("summary", pos, n - pos, "summary section damaged", messages=0))
                 return
             if op == Opcode.STATISTICS:
                 try:
@@ -390,9 +440,10 @@ class BagReader:
                 if buf[pos:pos + 8] == MCAP_MAGIC and pos + 8 == n:
                     rep.closed = True
                 else:
-                    rep.damage.append(Damage("truncated", pos, n - pos, "closing magic missing after the footer"))
+                    rep.damage.append(Damage("summary", pos, n - pos, "closing magic missing after the footer",
+                                             messages=0))
                 return
-        rep.damage.append(Damage("truncated", pos, n - pos, "summary section cut off"))
+        rep.damage.append(Damage("summary", pos, n - pos, "summary section cut off", messages=0))
 
     def _records(self, rep: ScanReport) -> Iterator[tuple[str, Any]]:
         """Walk + bookkeeping of schemas/channels/metadata; yields ('message', BagMessage) and the other records."""
@@ -440,6 +491,11 @@ class BagReader:
                                                type_hash=rec.metadata.get("topic_type_hash", ""))
                 elif kind == "metadata":
                     metadata.append((rec.name, dict(rec.metadata)))
+                    if rec.name == RECOVERY_METADATA_NAME and rep.expected_messages is None:
+                        try:
+                            rep.expected_messages = int(rec.metadata.get("recovered_messages", ""))
+                        except ValueError:
+                            pass
             if not rep.data_end and not any(d.kind == "truncated" for d in rep.damage):
                 rep.damage.append(Damage("no-summary", self.size, 0, "no summary or index; whatever the writer had "
                                                                      "not flushed yet is missing"))
@@ -551,10 +607,21 @@ def scan(path: str | os.PathLike) -> ScanReport:
         return r.report
 
 
-def recover(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool = False) -> ScanReport:
+#: bag-recover closes a chunk after this much log time (or DEFAULT_CHUNK_SIZE): damage to one loses only it
+RECOVER_CHUNK_SECONDS = 0.1
+
+
+def recover(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool = False,
+            chunk_seconds: float = RECOVER_CHUNK_SECONDS) -> ScanReport:
     """Rewrite every readable schema, channel, message, metadata and attachment of ``src`` (e.g. a file cut
-    short by a SIGKILL) into a new, valid, indexed MCAP file ``dst``. Returns the scan report of ``src``; a
-    ``flagbot_sim.recovery`` metadata record in ``dst`` repeats what was lost."""
+    short by a SIGKILL) into a new, valid, indexed MCAP file ``dst``. Returns the scan report of ``src``.
+
+    ``dst`` is written as the recorder writes: chunks of at most ``chunk_seconds`` of log time (and
+    DEFAULT_CHUNK_SIZE), each with a CRC, and schemas and channels also outside chunks, so damage to one chunk of
+    ``dst`` loses that chunk only. A ``flagbot_sim.recovery`` metadata record at its start says what was lost and
+    how many messages ``dst`` holds (``recovered_messages``): a later scan of a damaged ``dst`` counts its loss
+    exactly even when the summary is gone."""
+    from mcap.data_stream import RecordBuilder
     dst = Path(dst)
     if dst.exists() and not overwrite:
         raise BagError(f"{dst} exists; choose another name or allow overwriting")
@@ -564,28 +631,51 @@ def recover(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
         rep = r.report
         if rep.messages == 0 and not rep.ok:       # as bag-summary: no empty "valid" file that looks like success
             raise BagError(f"nothing recoverable: {rep.describe_loss()}")
+        earlier = r.metadata_named(RECOVERY_METADATA_NAME)
         with open(dst, "wb") as f:
-            w = Writer(f, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.ZSTD)
+            w = Writer(f, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.ZSTD, enable_crcs=True)
             w.start(rep.profile or PROFILE, rep.library or LIBRARY)
+
+            def outside(record) -> None:       # as BagWriter: a chunk decodes without the one that had these
+                b = RecordBuilder()
+                record.write(b)
+                f.write(b.end())
+
+            def metadata(name: str, data: dict) -> None:
+                w.add_metadata(name, data)
+                w.flush()           # the record is buffered until flushed: out before anything written outside
+
+            info = {"source": str(src), "loss": rep.describe_loss() or "nothing lost",
+                    "lost_bytes": str(rep.lost_bytes), "recovered_messages": str(rep.messages)}
+            if earlier:
+                info["earlier_loss"] = earlier.get("loss", "")
+            metadata(RECOVERY_METADATA_NAME, info)
             schema_map: dict[int, int] = {}
             channel_map: dict[int, int] = {}
+            span = None                 # log-time range of the chunk being filled
             scratch = ScanReport(str(src), r.size)
             for kind, rec in r._records(scratch):
                 if kind == "schema" and rec.id not in schema_map:
-                    schema_map[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+                    schema_map[rec.id] = sid = w.register_schema(rec.name, rec.encoding, rec.data)
+                    outside(Schema(id=sid, name=rec.name, encoding=rec.encoding, data=rec.data))
                 elif kind == "channel" and rec.id not in channel_map:
-                    channel_map[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
-                                                             schema_map.get(rec.schema_id, 0), rec.metadata)
+                    sid = schema_map.get(rec.schema_id, 0)
+                    channel_map[rec.id] = cid = w.register_channel(rec.topic, rec.message_encoding, sid,
+                                                                   rec.metadata)
+                    outside(Channel(id=cid, topic=rec.topic, message_encoding=rec.message_encoding, schema_id=sid,
+                                    metadata=rec.metadata))
                 elif kind == "message" and rec.channel_id in channel_map:
+                    t = rec.log_time_ns
+                    if span is None or max(span[1], t) - min(span[0], t) >= chunk_seconds * 1e9:
+                        w.flush()           # closes the chunk being filled (none at first)
+                        span = (t, t)
+                    span = (min(span[0], t), max(span[1], t))
                     w.add_message(channel_map[rec.channel_id], rec.log_time_ns, rec.data, rec.publish_time_ns,
                                   rec.sequence)
-                elif kind == "metadata":
-                    w.add_metadata(rec.name, rec.metadata)
+                elif kind == "metadata" and rec.name != RECOVERY_METADATA_NAME:   # the earlier one: in ours
+                    metadata(rec.name, rec.metadata)
                 elif kind == "attachment":
                     w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
-            w.add_metadata(RECOVERY_METADATA_NAME, {"source": str(src), "loss": rep.describe_loss() or "nothing lost",
-                                                    "lost_bytes": str(rep.lost_bytes),
-                                                    "recovered_messages": str(rep.messages)})
+                    w.flush()
             w.finish()
     return rep
-

@@ -12,7 +12,7 @@ import errno
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Callable, Mapping
 
@@ -33,6 +33,22 @@ def _describe(exc: OSError) -> str:
     return f"{text} ({name})" if name else text
 
 
+def _refuse_link(p: Path) -> None:
+    """A symbolic link at ``p`` whose target is missing or not a regular file: opening it would create or write that
+    target (another name, elsewhere) instead of ``p``. A link to an existing regular file is treated as that file."""
+    if not p.is_symlink():
+        return
+    try:
+        target = os.readlink(p)
+    except OSError:
+        target = "?"
+    if not p.exists():
+        raise BagWriteError(f"cannot record to {p}: it is a symbolic link to {target!r}, which does not exist: "
+                            "recording would create that file instead; give the file's own name")
+    if not p.is_file():
+        raise BagWriteError(f"cannot record to {p}: it is a symbolic link to {target!r}, which is not a regular file")
+
+
 @dataclass
 class TopicStats:
     topic: str
@@ -51,13 +67,17 @@ class WriteSummary:
     size_bytes: int
     closed: bool
     error: str = ""             # "" when every write succeeded
+    lost: dict[str, int] = field(default_factory=dict)   # topic -> messages that never reached the recorder
 
     def format(self) -> str:
+        lost = sum(self.lost.values())
         lines = [f"{self.path}: {self.messages} messages, {len(self.topics)} topics, {self.duration:.2f} s, "
                  f"{self.size_bytes / 1024:.1f} KiB, "
-                 f"{'closed with summary and index' if self.closed else 'NOT closed'}"]
+                 f"{'closed with summary and index' if self.closed else 'NOT closed'}"
+                 + (f", {lost} messages LOST before reaching the recorder" if lost else "")]
         for t in sorted(self.topics.values(), key=lambda s: s.topic):
-            lines.append(f"  {t.topic:32s} {t.type_name:40s} {t.count:8d}")
+            n = self.lost.get(t.topic, 0)
+            lines.append(f"  {t.topic:32s} {t.type_name:40s} {t.count:8d}" + (f"  {n} lost" if n else ""))
         if self.error:
             lines.append(f"  ERROR: {self.error}")
         return "\n".join(lines)
@@ -91,6 +111,7 @@ class BagWriter:
             run_record = metadata.to_record() if isinstance(metadata, RunMetadata) else dict(metadata)
         if isinstance(path, (str, os.PathLike)):
             p = Path(path)
+            _refuse_link(p)         # the name given, and below the '.mcap' name made of it (sim_node's rule too)
             # a directory, FIFO or device: appending ".mcap" would quietly write beside it (/tmp -> /tmp.mcap)
             if p.is_dir():
                 raise BagWriteError(f"cannot record to {p}: it is a directory; give a file name such as "
@@ -99,13 +120,16 @@ class BagWriter:
                 raise BagWriteError(f"cannot record to {p}: it is not a regular file")
             if p.suffix != ".mcap":
                 p = p.with_name(p.name + ".mcap")
+            _refuse_link(p)
             if p.exists() and not overwrite:
                 raise BagWriteError(f"cannot record to {p}: it exists; choose another name or allow overwriting")
             if not p.parent.is_dir():
                 raise BagWriteError(f"cannot record to {p}: directory {p.parent} does not exist")
             self.path = str(p)
             try:
-                self._file = open(p, "wb")
+                # "xb" (O_CREAT|O_EXCL) when nothing may be overwritten: it never follows a symbolic link, so a
+                # link or file made after the checks above (a race) is refused, not written through
+                self._file = open(p, "wb" if overwrite else "xb")
             except OSError as exc:
                 raise BagWriteError(f"cannot record to {p}: {_describe(exc)}") from None
             self._owns_file = True

@@ -6,7 +6,7 @@
 Layout: ``data`` (DATA.csv: inputs, measured outputs, weights), ``evaluate`` (steady states of many scene
 variants as engine tasks, continued along the motor speed), ``pool`` (the sweep engines kept open over many
 batches), ``fit`` (weighted least squares, confidence intervals, identifiability, prediction), ``optimize``
-(coarse grid + local refinement of a design space), ``plots``, ``cli``. See README "Fitting and design".
+(coarse grid + local refinement of a design space), ``plots``, ``cli``. See docs/usage.md "Fitting and design".
 """
 
 

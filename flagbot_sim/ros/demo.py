@@ -237,6 +237,32 @@ def _default_log_dir() -> Path:
 DISCOVERY_SETTLE = 1.0
 
 
+class BeamConfirm:
+    """The beam prediction from its three topics (omega_h, omega_t, speed), only when it is one prediction.
+
+    The topics arrive one by one, so at a change a snapshot mixes the new prediction with the old, and one topic
+    may deliver twice before another delivers at all (taking the snapshot after two equal deliveries once
+    showed 150 rpm's speed beside 100 rpm's split). beam_node publishes the three at every tick, in the same
+    order, on depth-1 queues: once a new value is out, each other topic delivers its old value at most once more.
+    So a snapshot in which every topic has delivered its value twice since the last change is one prediction."""
+
+    KEYS = ("h", "t", "v")
+
+    def __init__(self) -> None:
+        self.now = dict.fromkeys(self.KEYS, math.nan)
+        self.seen: dict = {}          # topic -> deliveries of its current value since any of the three changed
+
+    def feed(self, key: str, value: float) -> tuple | None:
+        """One delivery; the (omega_h, omega_t, v) prediction when it is confirmed, else None."""
+        if not (value == self.now[key]):
+            self.now[key] = value
+            self.seen.clear()
+        self.seen[key] = self.seen.get(key, 0) + 1
+        if len(self.seen) == 3 and min(self.seen.values()) >= 2:
+            return tuple(self.now[k] for k in self.KEYS)
+        return None
+
+
 def step_table(samples: dict, segments: list, beam: list) -> list[dict]:
     """Average the stamped samples over the last quarter of each step; take the beam prediction of the step's
     omega_T (the one whose omega_h + omega_t equals it)."""
@@ -399,7 +425,7 @@ def _monitor(duration: float, nodes: dict, quiet: bool, recording: bool = False,
     samples = {"omega_h": [], "omega_t": [], "v": []}
     beam_now = {"v": math.nan, "h": math.nan, "t": math.nan}
     beam: list = []
-    state = {"clock": 0.0, "cmd": math.nan, "beam_seen": None}
+    state = {"clock": 0.0, "cmd": math.nan}
 
     def t_of(stamp):
         return stamp.sec + 1e-9 * stamp.nanosec
@@ -412,15 +438,13 @@ def _monitor(duration: float, nodes: dict, quiet: bool, recording: bool = False,
     def on_odom(m):
         samples["v"].append((t_of(m.header.stamp), m.twist.twist.linear.x))
 
+    confirm = BeamConfirm()
+
     def on_beam(key):
         def cb(m):
-            # the three topics arrive one by one, so at a change a snapshot mixes the new prediction with the old;
-            # beam_node re-publishes all three at its rate, so a snapshot seen twice in a row is one prediction
-            beam_now[key] = m.data
-            snap = (beam_now["h"], beam_now["t"], beam_now["v"])
-            if snap == state["beam_seen"]:
+            snap = confirm.feed(key, m.data)
+            if snap is not None:
                 beam.append((state["clock"], state["cmd"], snap))
-            state["beam_seen"] = snap
         return cb
 
     qos = QoSProfile(depth=50)

@@ -24,6 +24,11 @@ of stamped types. Crash safety: the flush thread closes the chunk being filled a
 ``flush_interval`` (0.1 s) has passed since the last flush, waking exactly then and independently of the executor
 (a long simulation step does not delay it), so a SIGKILL loses at most that interval plus what was still queued
 in the middleware (see docs/recording.md for the measured figures).
+
+Lost messages: a message that never reached the recorder (a KEEP_LAST queue overflowed) shows as a gap in its
+publisher's sequence numbers; :attr:`Recorder.lost` counts them per topic (:mod:`flagbot_sim.bag.lost`), the
+first loss on a topic is logged, and ``close()`` stores the counts in the ``flagbot_sim.lost_messages`` metadata
+record and in its summary (printed by the standalone recorder, shown by ``flagbot bag-summary``).
 """
 from __future__ import annotations
 
@@ -45,6 +50,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from ..bag import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, BagError, BagWriter, QosInfo, RunMetadata,
                    WriteSummary, normalize_type, qos_to_yaml)
+from ..bag.lost import LOST_METADATA_NAME, LostCounter
 from ..topics import DEFAULT_RECORD_TOPICS
 from .bag_args import add_record_arguments, console_main
 from .runtime import SLICE, release, ros_process
@@ -114,6 +120,7 @@ class Recorder:
                                 chunk_size=chunk_size, compression=compression, flush_interval=flush_interval,
                                 overwrite=overwrite)
         self.path = self.writer.path
+        self.lost = LostCounter()       # messages that never reached us, from the publishers' sequence numbers
         self._subs: dict[str, object] = {}
         # /tf and /tf_static derived from the recorded robot topics where tf2_msgs is missing (tf_derive.py)
         self._tf = recorder_deriver(node, self._selected)
@@ -179,7 +186,11 @@ class Recorder:
         self.node.get_logger().info(f"recording {topic} [{normalize_type(type_name)}]")
 
     def _on_message(self, topic: str, data: bytes, info) -> None:
-        t = (info.get("received_timestamp", 0) if isinstance(info, dict) else 0) or time.time_ns()
+        info = info if isinstance(info, dict) else {}
+        if self.lost.first_loss(topic, info.get("publication_sequence_number")):
+            self.node.get_logger().warning(f"messages lost on {topic} before they reached the recorder (the "
+                                           "publisher's or this subscription's queue overflowed); counted at close")
+        t = info.get("received_timestamp", 0) or time.time_ns()
         if not self.writer.write(topic, data, t) and self.writer.error:
             self._report_error()
         elif self._tf is not None:
@@ -249,7 +260,11 @@ class Recorder:
                 self.node.destroy_timer(self._poll_timer)
             except Exception:
                 pass
-        return self.writer.close()
+            if not self.writer.closed:
+                self.writer.add_metadata(LOST_METADATA_NAME, self.lost.to_record())
+        summary = self.writer.close()
+        summary.lost = self.lost.counts()
+        return summary
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -42,6 +42,7 @@ class StopRequest:
         self._signalled = False
         self._event = threading.Event()
         self._saved: dict[int, object] = {}
+        self.raising = False          # inside :func:`interruptible`: a signal also raises KeyboardInterrupt
 
     def set(self) -> None:
         self._event.set()
@@ -62,6 +63,8 @@ class StopRequest:
         self._signalled = True
         for sig in self._saved:       # a second signal: the default action (KeyboardInterrupt / terminate)
             signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
+        if self.raising:
+            raise KeyboardInterrupt
 
     def install(self) -> None:
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -117,19 +120,41 @@ def release(executor: SingleThreadedExecutor | None, node) -> None:
         node.destroy_node()
 
 
+_ACTIVE: StopRequest | None = None
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """A long computation on the main thread that a stop request must cut short, not wait for (the first
+    compile of the kernels, tens of seconds on a loaded machine): inside, SIGINT/SIGTERM raise KeyboardInterrupt
+    as well as setting the stop flag. Only around work that holds nothing to close when it is cut."""
+    stop = _ACTIVE
+    if stop is None:
+        yield
+        return
+    stop.raising = True
+    try:
+        yield
+    finally:
+        stop.raising = False
+
+
 @contextlib.contextmanager
 def ros_process(args: list[str] | None) -> Iterator[StopRequest]:
     """rclpy initialised without its signal handlers; SIGINT/SIGTERM set the yielded StopRequest.
 
     The body tears its own nodes down; the context is shut down on exit.
     """
+    global _ACTIVE
     stop = StopRequest()
     configure_dds()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop.install()
+    _ACTIVE = stop
     try:
         yield stop
     finally:
+        _ACTIVE = None
         stop.uninstall()
         rclpy.try_shutdown()
 

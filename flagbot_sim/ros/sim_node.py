@@ -42,7 +42,7 @@ from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
                      lifecycle_requested, node_scene, record_refusal, text_refusal)
-from .runtime import Polled, one_line, run_node, take_all, wants_help
+from .runtime import Polled, interruptible, one_line, run_node, take_all, wants_help
 
 PARAMS = [
     ParamSpec("scene", "design1", "built-in scene name (design1, design2, ...) or path to a .toml scene file; "
@@ -96,7 +96,8 @@ def build_simulation(scene: str, n_flagella: int, scene_overrides) -> Simulation
         raise SceneError(f"{sc.robot.n_flagella} flagella of {edges // sc.robot.n_flagella} edges: sim_node runs "
                          f"at most {MAX_NODE_EDGES} flagellum edges (a step would take longer than many ticks)")
     try:
-        return Simulation(sc)
+        with interruptible():            # Ctrl-C during the first compile stops the node now, not after it
+            return Simulation(sc)
     except SceneError:
         raise
     except Exception as exc:  # noqa: BLE001 - an unbuildable scene is refused, never a crash of the node
@@ -346,7 +347,9 @@ class SimDevice:
         if s.error:
             self.recording_failed = True
         return (f"recording closed: {s.path}, {s.messages} messages on {len(s.topics)} topics, "
-                f"{s.duration:.1f} s, {s.size_bytes / 1024:.0f} KiB" + (f", ERROR {s.error}" if s.error else ""))
+                f"{s.duration:.1f} s, {s.size_bytes / 1024:.0f} KiB"
+                + (f", {sum(s.lost.values())} messages lost before reaching it" if any(s.lost.values()) else "")
+                + (f", ERROR {s.error}" if s.error else ""))
 
     def _check_recording(self) -> str:
         """The current recording's write error ('' if none). The recorder logs it itself, once."""

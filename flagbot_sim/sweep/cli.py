@@ -96,7 +96,7 @@ def _progress_text(res: dict) -> str:
 
 def cmd_sweep(args) -> int:
     from ..progress import ProgressBar
-    from ..scene import load_scene
+    from ..scene import load_scene, portable_source
 
     base = load_scene(args.scene, args.overrides)
     grid, points = validate(base, parse_grid(args.grid), base.overrides)     # base.overrides: the parsed --set
@@ -111,7 +111,7 @@ def cmd_sweep(args) -> int:
     frameworks = _frameworks(args.frameworks)
     identity = manifest_identity(base.flat(), grid, settings.to_dict(), list(frameworks))
     store = SweepStore(args.out, grid, points, identity,
-                       extra={"scene_name": base.scene.name, "scene_source": base.source, "set": args.overrides,
+                       extra={"scene_name": base.scene.name, "scene_source": portable_source(base.source), "set": args.overrides,
                               "command": sys.argv[1:]}, scene_toml=base.to_toml())
     pending = store.pending()
     workers = worker_count(args.engine, args.workers, len(pending))     # what run_tasks will start
