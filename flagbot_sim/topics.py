@@ -16,6 +16,10 @@ ROBOT_DESCRIPTION = "robot_description"   # std_msgs/String, URDF of head and pl
 # diagnostic_msgs/DiagnosticArray (transient local), one per restart of the simulated state: a ~/reset call or a
 # rebuild (new scene, n_flagella or overrides); what lets `replay --resimulate` follow a run across it
 RESETS = "resets"
+# tf2_msgs/TFMessage, absolute as tf2 uses them: world -> head and the URDF's moving joints (each published step),
+# its fixed joints (latched); sim_node publishes them where tf2_msgs is installed, a recording always has them
+TF = "/tf"
+TF_STATIC = "/tf_static"
 BEAM_SPEED = "beam/speed"            # std_msgs/Float64 (m/s)
 BEAM_OMEGA_H = "beam/omega_h"        # std_msgs/Float64 (rad/s)
 BEAM_OMEGA_T = "beam/omega_t"        # std_msgs/Float64 (rad/s)
@@ -26,6 +30,8 @@ PAUSE = "~/pause"                    # std_srvs/SetBool
 
 SIM_PUBLISHED = [CLOCK, HEAD_POSE, ODOM, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED, MARKERS, DIAGNOSTICS,
                  ROBOT_DESCRIPTION, RESETS]
+#: what sim_node publishes only where tf2_msgs is importable (and a recorder derives elsewhere)
+SIM_TF = [TF, TF_STATIC]
 BEAM_PUBLISHED = [BEAM_SPEED, BEAM_OMEGA_H, BEAM_OMEGA_T]
 #: what the recorder records by default: every flagbot topic, the command stream and the clock
-DEFAULT_RECORD_TOPICS = [CMD_OMEGA] + SIM_PUBLISHED + BEAM_PUBLISHED
+DEFAULT_RECORD_TOPICS = [CMD_OMEGA] + SIM_PUBLISHED + SIM_TF + BEAM_PUBLISHED

@@ -14,7 +14,10 @@ names and angles, so robot_state_publisher can turn joint_states into TF:
 Geometry (scene units, m), as physics/network.py builds it: the head a sphere of radius R_h about its centre,
 the motor at the centre; the joint one radius behind it, where the plate arms leave radially to R_d = L_p/2;
 the sockets run ``plate.thickness`` further back to the flagellum bases. The plate is drawn as a disc of radius
-R_d spanning the sockets. A clamp scene has no head: its URDF has no head visual (the head frame stays, held
+R_d spanning the sockets. Each flagellum's base (where it leaves its socket, the first node of its centreline)
+is a frame ``flagellum_<i>`` fixed on the plate by the joint ``flagellum_<i>_base`` (robot_state_publisher's
+/tf_static), its axes those of the plate; flagellum i's arm is at azimuth 2 pi i / n about the robot axis,
+measured from the body frame's -y towards +z (the simulation frame turned by pi about z). A clamp scene has no head: its URDF has no head visual (the head frame stays, held
 fixed). Visual elements only (no inertia: the dynamics are the simulator's).
 
     python -m flagbot_sim.urdf design1 > urdf/design1.urdf      # the committed files are regenerated so
@@ -28,8 +31,25 @@ from xml.sax.saxutils import quoteattr
 
 from .scene import Scene, SceneError, load_scene
 
-#: the joints of joint_states and of the URDF, in the order joint_states lists them
+#: the joints of joint_states and the URDF's moving joints, in the order joint_states lists them
 JOINT_NAMES = ("head_spin", "flagella_spin", "motor")
+
+
+def base_link(i: int) -> str:
+    """The frame of flagellum ``i``'s base (fixed on the plate)."""
+    return f"flagellum_{i}"
+
+
+def base_joint(i: int) -> str:
+    return f"flagellum_{i}_base"
+
+
+def base_position(scene: Scene, i: int) -> tuple[float, float, float]:
+    """Flagellum ``i``'s base in the head body frame (and in the plate frame at motor angle 0), m."""
+    phi = 2.0 * math.pi * i / scene.robot.n_flagella
+    y, z = -scene.R_d * math.cos(phi), scene.R_d * math.sin(phi)
+    # cos(pi/2) is 6e-17, not 0: components that vanish to rounding are written as 0
+    return (-scene.head.radius - scene.plate.thickness, *(0.0 if abs(c) < 1e-12 * scene.R_d else c for c in (y, z)))
 HEAD_COLOUR = (0.95, 0.8, 0.1)
 PLATE_COLOUR = (0.3, 0.3, 0.3)
 
@@ -73,6 +93,8 @@ def robot_urdf(scene: Scene, head_link: str = "head") -> str:
               "  </link>",
               '  <link name="head_axis"/>',
               '  <link name="flagella"/>']
+    n = scene.robot.n_flagella
+    lines += [f'  <link name="{base_link(i)}"/>' for i in range(n)]
     for joint, parent, child in (("head_spin", head_link, "head_axis"), ("flagella_spin", "head_axis", "flagella"),
                                  ("motor", head_link, "plate")):
         lines += [f'  <joint name="{joint}" type="continuous">',
@@ -80,6 +102,12 @@ def robot_urdf(scene: Scene, head_link: str = "head") -> str:
                   f'    <child link="{child}"/>',
                   '    <origin xyz="0 0 0" rpy="0 0 0"/>',
                   '    <axis xyz="-1 0 0"/>',
+                  "  </joint>"]
+    for i in range(n):
+        lines += [f'  <joint name="{base_joint(i)}" type="fixed">',
+                  '    <parent link="plate"/>',
+                  f'    <child link="{base_link(i)}"/>',
+                  f'    <origin xyz="{_xyz(base_position(scene, i))}" rpy="0 0 0"/>',
                   "  </joint>"]
     lines.append("</robot>")
     return "\n".join(lines) + "\n"

@@ -234,14 +234,17 @@ def wait_for(predicate, timeout: float, what: str, proc: ChildProcess | None = N
                          + (f"\n{proc.output()}" if proc is not None else ""))
 
 
-def bag_messages(path: str) -> int:
-    """Messages readable so far in a file being written (0 if it does not exist yet)."""
+def bag_messages(path: str, topics=None) -> int:
+    """Messages readable so far in a file being written (0 if it does not exist yet); only those on ``topics`` if
+    given (a recorder adds /tf derived from the robot's topics where tf2_msgs is missing)."""
     from flagbot_sim.bag import BagError, BagReader
     if not os.path.exists(path):
         return 0
     try:
         with BagReader(path) as r:
-            return r.report.messages
+            if topics is None:
+                return r.report.messages
+            return sum(info.count for t, info in r.topics.items() if t in topics)
     except BagError:
         return 0
 

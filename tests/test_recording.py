@@ -73,7 +73,7 @@ def test_sim_node_records_a_run_that_re_simulates_exactly(probe, tmp_path, at_la
         assert r.report.ok, r.report.describe_loss()
         topics = set(r.topics)
         meta = r.run_metadata()
-    assert {"/clock", "/joint_states", "/head_pose", "/odom", "/speed", "/cmd_omega"} <= topics
+    assert {"/clock", "/joint_states", "/head_pose", "/odom", "/speed", "/cmd_omega", "/tf", "/tf_static"} <= topics
     # the metadata alone rebuilds the node's scene: file + overrides + n_flagella
     expected = load_scene("design2", ["flagellum.length=0.05", "robot.n_flagella=3"])
     assert tomllib.loads(meta.scene_toml) == tomllib.loads(expected.to_toml())

@@ -61,6 +61,15 @@ def test_page_matches_the_live_node(ros, node_name):
     try:
         spin_until(ros, lambda: node_name in ros.get_node_names(), DISCOVERY_TIMEOUT, node_name)
         documented = {(absolute(name(r["topic"])), r["direction"], r["type"]) for r in doc["topics"]}
+        if node_name == "sim_node":
+            # /tf and /tf_static have their own section: live only where tf2_msgs is installed
+            from flagbot_sim.ros.tf_derive import tf_message_class
+            from flagbot_sim.topics import SIM_TF
+            tf_rows = doc["transforms (/tf, /tf_static)"]
+            assert [name(r["topic"]) for r in tf_rows] == SIM_TF
+            assert {r["type"] for r in tf_rows} == {"tf2_msgs/msg/TFMessage"}
+            if tf_message_class() is not None:
+                documented |= {(name(r["topic"]), "pub", r["type"]) for r in tf_rows}
 
         def live():
             pubs = ros.get_publisher_names_and_types_by_node(node_name, "/")

@@ -188,8 +188,11 @@ def test_robot_description_reaches_a_late_subscriber_with_the_joint_states_names
         ros.destroy_subscription(sub)
     root = ET.fromstring(got[-1].data)
     assert root.tag == "robot"
-    joints = {j.get("name") for j in root.iter("joint")}
+    # the moving joints are joint_states'; the fixed ones hold the flagellum bases (/tf_static)
+    joints = {j.get("name") for j in root.iter("joint") if j.get("type") != "fixed"}
     assert joints == set(lis.msgs["joints"][-1].name)
+    assert {j.get("name") for j in root.iter("joint") if j.get("type") == "fixed"} == {
+        f"flagellum_{i}_base" for i in range(load_scene(SCENE[0], SCENE[1]).robot.n_flagella)}
     children = {j.find("child").get("link") for j in root.iter("joint")}
     roots = {link.get("name") for link in root.iter("link")} - children
     assert roots == {lis.msgs["odom"][-1].child_frame_id}      # the URDF hangs from odometry's child frame
@@ -268,3 +271,91 @@ def test_shuts_down_cleanly_on_signals(ros, sig):
     code, out = proc.stop(sig)
     assert code == 0, out
     assert "Traceback" not in out and "error" not in out.lower()
+
+
+def test_fresh_recording_carries_tf_that_rosbags_decodes_and_that_matches_head_pose(ros, tmp_path):
+    """A recording made with record:= holds /tf and /tf_static (tf2_msgs/msg/TFMessage), whether sim_node could
+    publish them (tf2_msgs installed) or its recorder derived them. Read with rosbags' own Jazzy typestore (not
+    the file's schema): world -> head equals head_pose at every stamp from the first on, the joint transforms are
+    joint_states' angles, /tf_static holds the flagellum-base frames of the URDF and follows a rebuild."""
+    from pathlib import Path
+
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from flagbot_sim.ros import tf_derive
+    from flagbot_sim.urdf import base_link, base_position
+
+    out = tmp_path / "tf.mcap"
+    proc = NodeProcess("flagbot_sim.ros.sim_node", "--ros-args", "-p", f"scene:={SCENE[0]}",
+                       "-p", f"scene_overrides:={SCENE[1]!r}".replace("'", '"'), "-p", "n_flagella:=3",
+                       "-p", "real_time_factor:=5.0", "-p", "start_paused:=true", "-p", f"initial_omega:={OMEGA}",
+                       "-p", f"record:={out}")
+    lis = Listener(ros)
+    try:
+        start(ros, lis)
+        lis.run_until(1.0)
+        (res,) = set_params(ros, "sim_node", n_flagella=4)      # a rebuild: a new URDF, new fixed frames
+        assert res.successful, res.reason
+        lis.run_until(lis.clock + 1.0)
+    finally:
+        lis.close()
+        code, log = proc.stop()
+    assert code == 0 and "Traceback" not in log, log
+
+    if tf_derive.tf_message_class() is None:
+        assert log.count("not publishing /tf and /tf_static") == 1, log      # said once
+        assert "deriving /tf and /tf_static" in log, log
+
+    def plain(m):
+        return [(t.header.stamp.sec, t.header.stamp.nanosec, t.header.frame_id, t.child_frame_id,
+                 t.transform.translation.x, t.transform.translation.y, t.transform.translation.z,
+                 t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z, t.transform.rotation.w)
+                for t in m.transforms]
+
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    with AnyReader([Path(out)]) as ar:
+        conns = {c.topic: c for c in ar.connections}
+        assert conns["/tf"].msgtype == conns["/tf_static"].msgtype == "tf2_msgs/msg/TFMessage"
+        assert [q.durability.name for q in conns["/tf_static"].ext.offered_qos_profiles] == ["TRANSIENT_LOCAL"]
+        msgs = {t: [] for t in ("/tf", "/tf_static", "/head_pose", "/joint_states")}
+        for c, _, raw in ar.messages(connections=[conns[t] for t in msgs]):
+            m = jazzy.deserialize_cdr(raw, c.msgtype)
+            if c.topic.startswith("/tf"):        # the file's own schema reads the same message
+                assert plain(ar.deserialize(raw, c.msgtype)) == plain(m)
+            msgs[c.topic].append(m)
+
+    def ns(stamp):
+        return stamp.sec * 10 ** 9 + stamp.nanosec
+
+    def vec(v, *names):
+        return tuple(getattr(v, n) for n in names)
+
+    head, joints = {}, {}
+    for m in msgs["/tf"]:
+        for t in m.transforms:
+            key = (t.header.frame_id, t.child_frame_id)
+            tr = vec(t.transform.translation, "x", "y", "z") + vec(t.transform.rotation, "x", "y", "z", "w")
+            (head if key == ("world", "head") else joints.setdefault(key, {}))[ns(t.header.stamp)] = tr
+    poses = {ns(m.header.stamp): vec(m.pose.position, "x", "y", "z") + vec(m.pose.orientation, "x", "y", "z", "w")
+             for m in msgs["/head_pose"]}
+    assert len(head) > 20
+    first = min(head)
+    assert head == {t: p for t, p in poses.items() if t >= first}      # every pose from the first on, exactly
+    assert set(joints) == {("head", "head_axis"), ("head_axis", "flagella"), ("head", "plate")}
+    motor = {ns(m.header.stamp): m.position[list(m.name).index("motor")] for m in msgs["/joint_states"]}
+    plate = joints[("head", "plate")]
+    assert len(plate) > 20 and max(motor.values()) > 1.0
+    for t, tr in plate.items():     # a turn by the motor angle about -x
+        q = motor[t]
+        assert tr == pytest.approx((0, 0, 0, -math.sin(q / 2), 0, 0, math.cos(q / 2)), abs=1e-12)
+    # /tf_static: the fixed frames of the URDF in force, again after the rebuild
+    statics = [{t.child_frame_id: (t.header.frame_id, vec(t.transform.translation, "x", "y", "z"))
+                for t in m.transforms} for m in msgs["/tf_static"]]
+    assert len(statics) == 2
+    for n, frames in zip((3, 4), statics):
+        sc = load_scene(SCENE[0], [*SCENE[1], f"robot.n_flagella={n}"])
+        assert set(frames) == {base_link(i) for i in range(n)}
+        for i in range(n):
+            assert frames[base_link(i)][0] == "plate"
+            assert frames[base_link(i)][1] == pytest.approx(base_position(sc, i), abs=1e-9)

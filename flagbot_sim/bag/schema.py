@@ -2,7 +2,9 @@
 
 A schema holds the type's own ``.msg`` text followed by every dependent type, each after a line of 80 ``=`` and
 ``MSG: pkg/Type`` (the same regex, ordering and de-duplication as rosbag2's ``LocalMessageDefinitionSource``),
-read at run time from ``<prefix>/share/<pkg>/msg/*.msg`` of the installed interface packages.
+read at run time from ``<prefix>/share/<pkg>/msg/*.msg`` of the installed interface packages. A few types the
+recordings carry without their wheel (:data:`BUNDLED`: tf2_msgs/msg/TFMessage) have their own .msg text here,
+used when the package is not installed; their nested types are read as above.
 """
 from __future__ import annotations
 
@@ -89,10 +91,25 @@ def find_interface_file(package: str, namespace: str, name: str, ext: str = ".ms
                             f" install the interface package (e.g. pip install ros-jazzy-common-interfaces)")
 
 
+def _bundled() -> dict[str, str]:
+    from .tf import TF_MESSAGE, TF_MESSAGE_MSG
+    return {TF_MESSAGE: TF_MESSAGE_MSG}
+
+
+#: type -> its own .msg text, for types recorded where their interface package may be missing
+BUNDLED = _bundled()
+
+
 @functools.lru_cache(maxsize=None)
 def _msg_text(type_name: str) -> str:
     pkg, ns, name = split_type(type_name)
-    return find_interface_file(pkg, ns, name).read_text()
+    try:
+        return find_interface_file(pkg, ns, name).read_text()
+    except InterfaceNotFound:
+        text = BUNDLED.get(f"{pkg}/{ns}/{name}")
+        if text is None:
+            raise
+        return text
 
 
 def _msg_dependencies(text: str, package: str) -> list[str]:

@@ -16,7 +16,8 @@ node's namespace), an explicit list, or :data:`ALL` (every topic visible in the 
 it has a publisher, so its type comes from the graph and the subscription QoS can match the publishers': RELIABLE
 only if every publisher is reliable (a reliable reader does not match a best-effort writer), TRANSIENT_LOCAL if
 every publisher is (so latched messages are recorded too), else VOLATILE. Topics that appear later are picked up by
-a graph poll every ``poll_period`` seconds.
+a graph poll every ``poll_period`` seconds. Where tf2_msgs is not installed, /tf and /tf_static (when selected)
+are derived from the recorded odom, joint_states and robot_description instead (:mod:`.tf_derive`).
 
 Timing: log time = the middleware's receive timestamp (system clock, like rosbag2), publish time = the header stamp
 of stamped types. Crash safety: the flush thread closes the chunk being filled and flushes the file when
@@ -53,6 +54,7 @@ from ..bag.lost import LOST_METADATA_NAME, LostCounter
 from ..topics import DEFAULT_RECORD_TOPICS
 from .bag_args import add_record_arguments, console_main
 from .runtime import SLICE, release, ros_process
+from .tf_derive import recorder_deriver
 
 #: pass as ``topics`` to record every topic visible in the graph
 ALL = "all"
@@ -120,6 +122,10 @@ class Recorder:
         self.path = self.writer.path
         self.lost = LostCounter()       # messages that never reached us, from the publishers' sequence numbers
         self._subs: dict[str, object] = {}
+        # /tf and /tf_static derived from the recorded robot topics where tf2_msgs is missing (tf_derive.py)
+        self._tf = recorder_deriver(node, self._selected)
+        for t in self._tf.topics if self._tf is not None else ():
+            self._subs[t] = None       # written by the deriver, never subscribed
         self._mismatch_warned: set[str] = set()
         self._error_reported = False
         self._report_lock = threading.Lock()
@@ -184,9 +190,11 @@ class Recorder:
         if self.lost.first_loss(topic, info.get("publication_sequence_number")):
             self.node.get_logger().warning(f"messages lost on {topic} before they reached the recorder (the "
                                            "publisher's or this subscription's queue overflowed); counted at close")
-        if not self.writer.write(topic, data, info.get("received_timestamp", 0) or time.time_ns()) \
-                and self.writer.error:
+        t = info.get("received_timestamp", 0) or time.time_ns()
+        if not self.writer.write(topic, data, t) and self.writer.error:
             self._report_error()
+        elif self._tf is not None:
+            self._tf.record(self.writer, topic, data, t)
 
     def _report_error(self) -> None:
         """Log the first write failure, once (not once per message or topic)."""

@@ -6,6 +6,9 @@ excluded, the recorded clock messages are republished like any topic; otherwise 
 of the playback position is published at ``clock_rate`` Hz, so ``use_sim_time`` nodes follow the recording either
 way (``--no-clock`` turns the derived one off). With ``loop`` the clock jumps back at each restart, as in rosbag2.
 
+/tf and /tf_static (tf2_msgs/msg/TFMessage, which every recording carries) are republished where tf2_msgs is
+installed; elsewhere the replay says once that it skips them, and replays the rest.
+
 Damaged files: everything readable is replayed; what was lost (bytes, log-time ranges, message counts when the
 summary survived) is logged before playback starts and returned in :class:`ReplayStats`. A non-MCAP file raises
 :class:`flagbot_sim.bag.NotMcapError` before any ROS entity is created.
@@ -27,11 +30,13 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..bag import BagError, BagReader, ScanReport
+from ..bag import BagError, BagReader, ScanReport, normalize_type
+from ..bag.tf import TF_MESSAGE
 from ..topics import CLOCK
 from .bag_args import add_replay_arguments, console_main
 from .recorder import message_class
 from .runtime import SLICE, release, ros_process
+from .tf_derive import NO_TF2, tf_message_class
 
 
 @dataclass
@@ -109,12 +114,17 @@ class Replayer:
         self.clock_rate = clock_rate
         self.stats = ReplayStats(report=self.report)
         self.publishers = {}
+        no_tf = []          # TFMessage topics where tf2_msgs is missing: said once for all of them
         for topic, info in sorted(self.report.topics.items()):
             if topics is not None and not _matches(topic, topics):
                 continue
             if _matches(topic, exclude):
                 continue
             if info.count == 0:
+                continue
+            if normalize_type(info.type_name) == TF_MESSAGE and tf_message_class() is None:
+                no_tf.append(topic)
+                self.stats.skipped_topics[topic] = NO_TF2
                 continue
             try:
                 cls = message_class(info.type_name)
@@ -123,6 +133,8 @@ class Replayer:
                 node.get_logger().warning(f"not replaying {topic}: {exc}")
                 continue
             self.publishers[topic] = node.create_publisher(cls, topic, publisher_qos(info.offered_qos))
+        if no_tf:
+            node.get_logger().warning(f"not replaying {' and '.join(no_tf)}: {NO_TF2}")
         self.clock_pub = None
         if clock and CLOCK not in self.publishers:
             from rosgraph_msgs.msg import Clock

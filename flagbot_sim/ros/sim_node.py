@@ -2,7 +2,8 @@
 
 Subscribes to the motor command (``cmd_omega``), steps the DER model in a wall-clock timer at the requested
 real-time factor, and publishes the head pose, odometry, head/flagellar spin, the flagella as markers, the URDF
-of head and plate, /clock and diagnostics. The interface is documented in msg_docs/sim_node.md (a test checks it
+of head and plate, /clock and diagnostics, and /tf + /tf_static where tf2_msgs is installed (recordings derive
+them where it is not: ros/tf_derive.py). The interface is documented in msg_docs/sim_node.md (a test checks it
 against the live node).
 
 Parameter sets are transactions: everything a set implies (the scene load and simulation build, the new
@@ -34,8 +35,9 @@ from .. import __version__, world
 from ..pacer import Pacer
 from ..physics import Simulation, StepFailed
 from ..scene import SceneError
+from ..tf_tree import TfTree, stamp_ns_of
 from ..urdf import robot_urdf
-from . import convert
+from . import convert, tf_derive
 from .. import topics as names
 from .dds import configure_dds
 from .params import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, declare, frame_refusal, help_text,
@@ -146,6 +148,8 @@ class SimDevice:
         self.time_offset = 0.0                   # keeps /clock monotonic across resets and configurations
         self.recording_failed = False            # a recording failed to write during this run: exit code 1
         self._said_sim_time = False
+        self._said_no_tf = False
+        self._tree = None                        # the kinematic tree of the robot_description last published
         self._builder = TimeLimited(BUILD_LIMIT, "the scene load and simulation build")
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -213,6 +217,15 @@ class SimDevice:
         self.pub_diag = pub(DiagnosticArray, names.DIAGNOSTICS)
         self.pub_description = pub(String, names.ROBOT_DESCRIPTION, latched)
         self.pub_resets = pub(DiagnosticArray, names.RESETS, latched)
+        self.pub_tf = self.pub_tf_static = None
+        tf_cls = tf_derive.tf_message_class()
+        if tf_cls is not None:     # tf2's broadcasters' QoS: /tf keep last 100, /tf_static latched
+            self.pub_tf = pub(tf_cls, names.TF, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+            self.pub_tf_static = pub(tf_cls, names.TF_STATIC, latched)
+        elif not self._said_no_tf:
+            self._said_no_tf = True
+            self.get_logger().info(f"not publishing {names.TF} and {names.TF_STATIC}: {tf_derive.NO_TF2}; "
+                                   "recordings derive them from odom, joint_states and robot_description")
         # commands are taken in the timer, never by the executor (see _take_commands)
         self._cmd_sub = self.create_subscription(Float64, names.CMD_OMEGA, self._on_cmd, qos,
                                                  callback_group=Polled())
@@ -561,8 +574,14 @@ class SimDevice:
         # odometry carries the same pose: the orientation quaternion is computed once per tick
         self.pub_odom.publish(convert.odometry_msg(t, self.frame_id, self.child_frame_id, pose.pose, R_w,
                                                    snap.velocity, snap.angular_velocity))
-        self.pub_joints.publish(convert.joint_state_msg(t, snap.phi_h, snap.phi_t, snap.omega_h, snap.omega_t,
-                                                        snap.drive_angle, snap.omega_T, snap.motor_torque))
+        joints = convert.joint_state_msg(t, snap.phi_h, snap.phi_t, snap.omega_h, snap.omega_t, snap.drive_angle,
+                                         snap.omega_T, snap.motor_torque)
+        self.pub_joints.publish(joints)
+        if self.pub_tf is not None:     # what robot_state_publisher and an odometry broadcaster would send
+            st = stamp_ns_of(pose.header.stamp)
+            self.pub_tf.publish(tf_derive.ros_tf_message(
+                [tf_derive.head_transform(st, self.frame_id, self.child_frame_id, pose.pose)] +
+                (self._tree.joint_transforms(st, joints.name, joints.position) if self._tree else [])))
         self.pub_omega_h.publish(convert.float_msg(snap.omega_h))
         self.pub_omega_t.publish(convert.float_msg(snap.omega_t))
         self.pub_speed.publish(convert.float_msg(snap.v))
@@ -605,6 +624,10 @@ class SimDevice:
         if text != self._description:
             self._description = text
             self.pub_description.publish(convert.string_msg(text))
+            self._tree = TfTree(text)
+            if self.pub_tf_static is not None:
+                self.pub_tf_static.publish(tf_derive.ros_tf_message(
+                    self._tree.static_transforms(int(round(self.sim_time * 1e9)))))
 
     def _problems(self, achieved: float) -> tuple[list[str], list[str]]:
         """(errors, warnings) for the diagnostics, each a sentence with its numbers.
@@ -729,7 +752,8 @@ def main(argv: list[str] | None = None) -> int:
     if wants_help(argv):
         print(help_text("sim_node", __doc__.strip().splitlines()[0], PARAMS,
                         "topics: sub cmd_omega; pub /clock, head_pose, odom, joint_states, omega_h, omega_t, speed, "
-                        "markers, robot_description, /diagnostics; services: ~/reset, ~/pause"))
+                        "markers, robot_description, /diagnostics, resets, /tf and /tf_static (where tf2_msgs is "
+                        "installed); services: ~/reset, ~/pause"))
         return 0
     try:
         managed = lifecycle_requested(argv)
