@@ -195,3 +195,27 @@ def test_the_demo_takes_a_beam_prediction_only_whole_whatever_order_its_three_to
                 got.append(snap)
         assert set(got) <= set(preds), (seed, set(got) - set(preds))
         assert preds[-1] in got, seed
+
+
+def test_the_demo_asks_each_node_to_stop_once(tmp_path):
+    """A node takes a second SIGINT as "stop now" (its recording then loses its end: a sample recording was cut
+    this way, a KeyboardInterrupt inside the recorder's close). The demo's stop sends one, however called."""
+    import signal
+    import time
+    from flagbot_sim.ros.demo import NodeProcess
+    code = textwrap.dedent("""
+        import signal, sys, time
+        got = []
+        signal.signal(signal.SIGINT, lambda *a: got.append(1))
+        print("ready", flush=True)
+        while not got:
+            time.sleep(0.01)
+        time.sleep(1.0)                  # an orderly stop takes a while; count what arrives meanwhile
+        sys.exit(len(got))
+    """)
+    node = NodeProcess("counter", [sys.executable, "-c", code], tmp_path / "counter.log", dict(os.environ))
+    deadline = time.monotonic() + 60
+    while "ready" not in node.log() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    node.interrupt()                     # what the demo's teardown does for every node, then stop() for each
+    assert node.stop(timeout=60) == 1, node.log()

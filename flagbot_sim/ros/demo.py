@@ -164,6 +164,7 @@ class NodeProcess:
     def __init__(self, name: str, cmd: list[str], log_path: Path, env: dict):
         self.name = name
         self.log_path = log_path
+        self.interrupted = False        # SIGINT sent: a second one would cut the node's orderly stop short
         self._log = open(log_path, "w")
         try:
             self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env)
@@ -187,10 +188,16 @@ class NodeProcess:
     def exit_code(self) -> int | None:
         return self.proc.poll()
 
-    def stop(self, timeout: float = 20.0):
-        """The exit code once the node has stopped (SIGINT, then SIGKILL after ``timeout``), or 'killed'."""
-        if self.proc.poll() is None:
+    def interrupt(self) -> None:
+        """Ask the node to stop (SIGINT), once: a node takes a second signal as "stop now", which would leave
+        its recording without its last messages, summary and index."""
+        if not self.interrupted and self.proc.poll() is None:
+            self.interrupted = True
             self.proc.send_signal(signal.SIGINT)
+
+    def stop(self, timeout: float = 20.0):
+        """The exit code once the node has stopped (SIGINT, once, then SIGKILL after ``timeout``), or 'killed'."""
+        self.interrupt()
         try:
             code = self.proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -368,8 +375,7 @@ def _demo(args) -> int:
         failure = exc
     finally:
         for node in nodes.values():          # all asked to stop at once, then waited for
-            if node.exit_code() is None:
-                node.proc.send_signal(signal.SIGINT)
+            node.interrupt()
         codes = {k: node.stop() for k, node in nodes.items()}
     if failure is not None:
         report_failure(failure, log_dir)
