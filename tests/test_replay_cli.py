@@ -37,8 +37,9 @@ def test_replay_script_resimulates_like_flagbot_replay(extra):
 
 
 def tampered_copy(src, dst, *, seconds=3.0, scene_edit=("mu = 2.125", "mu = 2.14625")):
-    """The first `seconds` of a recording's motion (joint_states, head_pose), with its stored scene edited: the
-    same commands now drive a robot in a 1 % more viscous medium, so the re-simulation must not match."""
+    """A recording's motion (joint_states, head_pose) up to `seconds` after its first command, with its stored
+    scene edited: the same commands now drive a robot in a 1 % more viscous medium, so the re-simulation must not
+    match."""
     from flagbot_sim.bag import BagReader, BagWriter, RunMetadata, qos_to_yaml
     with BagReader(src) as r:
         meta = r.run_metadata()
@@ -49,7 +50,9 @@ def tampered_copy(src, dst, *, seconds=3.0, scene_edit=("mu = 2.125", "mu = 2.14
             for t in keep:
                 info = r.topics[t]
                 w.add_topic(t, info.type_name, offered_qos_profiles=qos_to_yaml(info.offered_qos))
-            end = r.report.start_ns + int(seconds * 1e9)
+            # the device idles until its first command (the demo's nodes start and discover each other first)
+            start = next(m.log_time_ns for m in r.messages(["/cmd_omega"]))
+            end = start + int(seconds * 1e9)
             for m in r.messages(keep):
                 if m.log_time_ns <= end:
                     w.write(m.topic, m.data, m.log_time_ns, m.publish_time_ns)
