@@ -110,13 +110,18 @@ def test_bad_commands_are_rejected_and_the_next_good_one_is_obeyed(ros, sim_node
     lis.cmd.publish(Float64(data=7.0))
     t_good = lis.clock
     # the motor joint reports the command in force; once it is 7, head and flagella settle to share it
+    # (within 10 s of wall time; how much simulated time that is depends on the machine's load: not asserted)
     spin_until(ros, lambda: lis.msgs["joints"][-1].velocity[2] == 7.0, 10, "the new command in force")
-    t_obeyed = t_of(lis.msgs["joints"][-1].header.stamp)
+    motor = [(t_of(m.header.stamp), m.velocity[2]) for m in lis.msgs["joints"]]
+    k = next(i for i, (_, w) in enumerate(motor) if w == 7.0)
+    t_obeyed = motor[k][0]
+    assert t_obeyed >= t_good
+    # from the last good command to the new one in one step: no rejected value was ever in force
+    assert {w for _, w in motor[:k]} <= {4.0} and all(w == 7.0 for _, w in motor[k:]), motor
     lis.run_until(t_obeyed + 1.5)
     js = [(t_of(m.header.stamp), m.velocity) for m in lis.msgs["joints"]]
     rate_sum = window_mean([(t, v[0] + v[1]) for t, v in js], t_obeyed + 1.0, lis.clock)
     assert rate_sum == pytest.approx(7.0, rel=0.01)
-    assert t_obeyed - t_good < 1.0                         # obeyed within a second of simulated time
     assert not lis.non_finite
 
 
