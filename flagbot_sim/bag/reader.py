@@ -362,6 +362,22 @@ class BagReader:
                 rep.damage.append(d)
                 pos = nxt
                 continue
+            if op == Opcode.DATA_END and length != 4 and self._resync(pos + 1) < n:
+                # a data end is 4 bytes (a CRC); another record whose opcode bit flipped to it would end the data
+                # section here and lose every chunk after it
+                nxt = self._resync(pos + 1)
+                rep.damage.append(Damage("unreadable", pos, nxt - pos, f"a record with a damaged opcode (data end "
+                                                                        f"of {length} bytes)", messages=0))
+                pos = nxt
+                continue
+            if op == Opcode.MESSAGE_INDEX and not self._index_shaped(pos + 9, length):
+                # an index whose length field was hit would send the walk past good chunks into the middle of
+                # a later record: not an index's layout, so look for the next record right after its start
+                nxt = self._resync(pos + 1)
+                rep.damage.append(Damage("unreadable", pos, nxt - pos, f"a message index record with a damaged "
+                                                                        f"length ({length})", messages=0))
+                pos = nxt
+                continue
             try:
                 rec = _parse(op, buf[pos + 9:end], exact=op not in (Opcode.DATA_END,))
             except _BadRecord as exc:
