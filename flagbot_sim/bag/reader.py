@@ -362,14 +362,15 @@ class BagReader:
                 rep.damage.append(d)
                 pos = nxt
                 continue
-            if op == Opcode.DATA_END and length != 4 and self._resync(pos + 1) < n:
+            if op == Opcode.DATA_END and length != 4:
                 # a data end is 4 bytes (a CRC); another record whose opcode bit flipped to it would end the data
                 # section here and lose every chunk after it
                 nxt = self._resync(pos + 1)
-                rep.damage.append(Damage("unreadable", pos, nxt - pos, f"a record with a damaged opcode (data end "
-                                                                        f"of {length} bytes)", messages=0))
-                pos = nxt
-                continue
+                if nxt < n:
+                    rep.damage.append(Damage("unreadable", pos, nxt - pos, f"a record with a damaged opcode (data "
+                                                                            f"end of {length} bytes)", messages=0))
+                    pos = nxt
+                    continue
             if op == Opcode.MESSAGE_INDEX and not self._index_shaped(pos + 9, length):
                 # an index whose length field was hit would send the walk past good chunks into the middle of
                 # a later record: not an index's layout, so look for the next record right after its start
@@ -408,7 +409,6 @@ class BagReader:
                                                                          "opcode", messages=0))
                 pos = end
                 continue
-            after_chunk = after_chunk or op == Opcode.CHUNK
             if op in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.METADATA, Opcode.ATTACHMENT):
                 yield rec
             pos = end

@@ -624,8 +624,8 @@ class SimDevice:
         if text != self._description:
             self._description = text
             self.pub_description.publish(convert.string_msg(text))
-            self._tree = TfTree(text)
-            if self.pub_tf_static is not None:
+            if self.pub_tf_static is not None:    # the tree serves only what sim_node publishes on /tf itself
+                self._tree = TfTree(text)
                 self.pub_tf_static.publish(tf_derive.ros_tf_message(
                     self._tree.static_transforms(int(round(self.sim_time * 1e9)))))
 
