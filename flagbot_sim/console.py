@@ -31,15 +31,18 @@ def own_arguments(argv: list[str]) -> list[str]:
     return own
 
 
-def ros_entry(module: str, prog: str):
+def ros_entry(module: str, prog: str, needs: str | None = None):
     """A console-script ``main`` for a ROS process: ``--version`` prints :func:`~flagbot_sim.cliutil.version_text`;
     without ROS 2 it prints one line and exits :data:`~flagbot_sim.optional.EXIT_CODE` instead of a traceback;
-    otherwise it runs ``module.main``."""
+    otherwise it runs ``module.main``. ``needs``: a ROS module imported first, for a ``module`` that imports ROS 2
+    only when it runs (the ``replay`` command) but whose console script needs it either way."""
     def main() -> int:
         if "--version" in own_arguments(sys.argv[1:]):
             print(version_text(prog))
             return 0
         try:
+            if needs is not None:
+                importlib.import_module(needs)
             mod = importlib.import_module(module)
         except ModuleNotFoundError as exc:
             if (missing := missing_ros(exc, prog)) is None:
@@ -75,4 +78,4 @@ sim_node = ros_entry("flagbot_sim.ros.sim_node", "sim_node")
 beam_node = ros_entry("flagbot_sim.ros.beam_node", "beam_node")
 cmd_profile = ros_entry("flagbot_sim.ros.cmd_profile", "cmd_profile")
 record = ros_entry("flagbot_sim.ros.recorder", "record")
-replay = ros_entry("flagbot_sim.ros.replay", "replay")
+replay = ros_entry("flagbot_sim.commands.replay", "replay", needs="flagbot_sim.ros.replay")

@@ -397,7 +397,7 @@ def write_step_bag(path, with_clock=True, parameters=None):
 
 
 def test_bag_summary_finds_the_steps_and_their_steady_state(tmp_path):
-    from flagbot_sim.bagtools import summarize
+    from flagbot_sim.runs.summary import summarize
     path = tmp_path / "steps.mcap"
     write_step_bag(path)
     s = summarize(path)
@@ -433,7 +433,7 @@ def test_bag_summary_cli_prints_json_and_writes_the_plot(tmp_path):
 
 
 def test_bag_summary_plot_says_what_its_shaded_windows_are(tmp_path):
-    from flagbot_sim.bagtools import summarize, summary_figure
+    from flagbot_sim.runs.summary import summarize, summary_figure
     path = tmp_path / "steps.mcap"
     write_step_bag(path)
     fig = summary_figure(summarize(path, tail=0.4))

@@ -151,7 +151,7 @@ def test_round_trip_record_replay_record(published, tmp_path):
     first = published[0]
     second = str(tmp_path / "second.mcap")
     rec = record(second, *TOPICS)
-    rep = ChildProcess("-m", "flagbot_sim.ros.replay", first, "--wait-for-subscribers", str(DISCOVERY_TIMEOUT))
+    rep = ChildProcess("-m", "flagbot_sim.commands.replay", first, "--wait-for-subscribers", str(DISCOVERY_TIMEOUT))
     try:
         code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + 30)
         assert code == 0, output
@@ -223,7 +223,7 @@ def test_replay_publishes_clock_from_log_time_with_rate_offset_and_filter(tmp_pa
     watch = start_helper("clockwatch", "--topic", "/t/speed", "--count", "25", "--out", watch_out)
     try:
         wait_for(lambda: "clockwatch ready" in watch.output(), DISCOVERY_TIMEOUT, "the use_sim_time node", watch)
-        rep = ChildProcess("-m", "flagbot_sim.ros.replay", str(path), "--rate", "2", "--start-offset", "0.5",
+        rep = ChildProcess("-m", "flagbot_sim.commands.replay", str(path), "--rate", "2", "--start-offset", "0.5",
                    "--exclude", "/t/omega_h", "--wait-for-subscribers", str(DISCOVERY_TIMEOUT))
         code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + 30)
         assert code == 0, output
@@ -268,7 +268,7 @@ def test_replay_of_a_truncated_file_replays_what_is_readable_and_says_what_was_l
     cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     readable = scan(cut).messages
     assert 0 < readable < 50
-    rep = ChildProcess("-m", "flagbot_sim.ros.replay", str(cut), "--rate", "10", "--no-clock")
+    rep = ChildProcess("-m", "flagbot_sim.commands.replay", str(cut), "--rate", "10", "--no-clock")
     code, output = rep.wait(timeout=30)
     assert code == 0, output
     assert "not closed properly" in output and "LOST:" in output and f"recovered {readable} messages" in output

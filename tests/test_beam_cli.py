@@ -64,7 +64,7 @@ def test_a_clamped_scene_is_refused_with_the_reason(capsys):
 
 def test_json_is_strict_even_for_a_failed_point(capsys, monkeypatch):
     # a point the balance could not solve carries NaN; the JSON writes null where Python's json writes NaN
-    import flagbot_sim.beam.cli as beam_cli
+    import flagbot_sim.commands.beam as beam_cli
 
     class Failed:
         converged = False

@@ -153,7 +153,7 @@ def test_scenes_prints_aligned_columns(capsys):
 
 
 def test_summary_shows_missing_values_as_dashes_never_nan():
-    from flagbot_sim.cli import format_summary
+    from flagbot_sim.commands.run import format_summary
     from flagbot_sim.scene import load_scene
     out = {"scene": "design1", "n_flagella": 2, "omega_T": 10.47, "omega_h": None, "omega_t": float("nan"),
            "v": None, "steady": False, "window": 2.0, "time": 0.0, "steps": 0, "newton_iterations": 0,

@@ -156,9 +156,10 @@ def test_the_graph_sees_the_imports_that_matter():
     the command modules cli.py loads through importlib are all edges."""
     g = import_graph()
     assert "flagbot_sim.bag.writer" in g["flagbot_sim.bag"]                 # from .writer import BagWriter
-    assert "flagbot_sim.ros.recorder" in g["flagbot_sim.bagtools"]          # inside cmd_record
+    assert "flagbot_sim.ros.recorder" in g["flagbot_sim.commands.record"]   # inside cmd_record
     assert "flagbot_sim.physics.warmup" in g["flagbot_sim.physics.simulation"]   # from . import warmup
-    assert {"flagbot_sim.bagtools", "flagbot_sim.sweep", "flagbot_sim.beam.cli"} <= g["flagbot_sim.cli"]
+    assert {"flagbot_sim.commands.replay", "flagbot_sim.commands.sweep",
+            "flagbot_sim.commands.beam"} <= g["flagbot_sim.cli"]
     # a cycle is found and printed as a path back to its start
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c", "a"]]
     assert cycles({"a": {"b"}, "b": set()}) == []
@@ -170,8 +171,8 @@ def test_no_import_cycle():
     assert not found, "import cycles:\n" + "\n".join(f"  {c}   (all in this circle: {comp})" for c, comp in found)
 
 
-@pytest.mark.parametrize("forbidden", ["flagbot_sim.cli", "flagbot_sim.bagtools", "flagbot_sim.topics",
-                                       "flagbot_sim.ros", "flagbot_sim.resim", "flagbot_sim.physics",
+@pytest.mark.parametrize("forbidden", ["flagbot_sim.cli", "flagbot_sim.commands", "flagbot_sim.topics",
+                                       "flagbot_sim.ros", "flagbot_sim.runs", "flagbot_sim.physics",
                                        "flagbot_sim.scene"])
 def test_the_bag_package_knows_no_cli_no_ros_and_no_flagbot_topic(forbidden):
     g = import_graph()

@@ -119,7 +119,7 @@ def test_disabled_writes_nothing():
 
 
 def test_the_sweep_progress_line_shows_a_failed_point_without_nan():
-    from flagbot_sim.sweep.cli import _progress_text
+    from flagbot_sim.commands.sweep import _progress_text
     text = _progress_text({"rows": [{"framework": "der", "error": "no steady state", "hit_cap": False, "n": 2,
                                      "L": 0.111, "omega_T_rpm": 100.0, "v": float("nan"), "wall_seconds": None}]})
     assert "nan" not in text and "v=--mm/s ERROR" in text and "L=111mm" in text

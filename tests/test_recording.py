@@ -9,8 +9,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
 from flagbot_sim.bag import BagReader
-from flagbot_sim.bagtools import summarize
-from flagbot_sim.resim import resimulate
+from flagbot_sim.runs.summary import summarize
+from flagbot_sim.runs.resim import resimulate
 from flagbot_sim.scene import load_scene
 
 from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, call, set_params, spin_until

@@ -16,7 +16,7 @@ from std_msgs.msg import Float64
 
 from flagbot_sim.bag import BagReader
 from flagbot_sim.bag.lost import LOST_METADATA_NAME
-from flagbot_sim.bagtools import format_summary, summarize
+from flagbot_sim.runs.summary import format_summary, summarize
 from flagbot_sim.ros.recorder import Recorder
 
 from ros_helpers import DISCOVERY_TIMEOUT

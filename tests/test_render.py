@@ -205,7 +205,8 @@ def test_rows_of_one_design_share_their_times_once_steady(tmp_path, capsys):
     import argparse
     args = argparse.Namespace(sources=["design2"], overrides=[], n=None, times=None, snapshots=4, duration=None,
                               frames=0, gif=None, namespace=None, layout="paper")
-    rows, title = render.build_rows(args)
+    from flagbot_sim.commands.render import build_rows
+    rows, title = build_rows(args)
     t2, t3 = ([g.t for g in r.snapshots] for r in rows)
     assert t2 == t3 and title.startswith("Fig. 1, a row per design: design 2")
     period = max(2 * math.pi / abs(r.values["omega_t"]) for r in rows)

@@ -12,11 +12,11 @@ BAG = ROOT / "bags" / "design2_n2_steps.mcap"      # the shortest sample recordi
 
 
 def replay_script(*args, timeout=120):
-    """The ``replay`` console script (setup.py: ``flagbot_sim.ros.replay:main``, also scripts/replay) run as
-    ``python -m flagbot_sim.ros.replay ARGS``; the CompletedProcess."""
+    """The ``replay`` console script (setup.py: ``flagbot_sim.console:replay``, also scripts/replay) run as
+    ``python -m flagbot_sim.commands.replay ARGS``; the CompletedProcess."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "flagbot_sim.ros.replay", *args], capture_output=True, text=True,
-                          env=env, cwd=ROOT, timeout=timeout)
+    return subprocess.run([sys.executable, "-m", "flagbot_sim.commands.replay", *args], capture_output=True,
+                          text=True, env=env, cwd=ROOT, timeout=timeout)
 
 
 @pytest.mark.parametrize("extra", [["--json"], []], ids=["json", "text"])

@@ -4,7 +4,7 @@ taken from the recorded restart), and a verdict over part of a recording says PA
 import numpy as np
 import pytest
 
-from flagbot_sim.resim import (POSITION_TOLERANCE, RATE_TOLERANCE, Restart, Resimulation, command_schedule,
+from flagbot_sim.runs.resim import (POSITION_TOLERANCE, RATE_TOLERANCE, Restart, Resimulation, command_schedule,
                                first_jump, replay_plan)
 from flagbot_sim.scene import load_scene
 
@@ -113,7 +113,7 @@ def test_the_sample_recording_with_a_reversal_is_compared_whole():
     reversal (8.0 s of 32.2 s) and still said REPRODUCED."""
     from pathlib import Path
 
-    from flagbot_sim.resim import resimulate
+    from flagbot_sim.runs.resim import resimulate
     res = resimulate(Path(__file__).resolve().parents[1] / "bags" / "design2_n2_reversal.mcap")
     commands = [w for _, w in res.commands]
     assert min(commands) < 0 < max(commands) and 0.0 in commands[1:]

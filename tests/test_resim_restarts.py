@@ -15,7 +15,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
 from flagbot_sim.bag import BagReader, BagWriter, qos_to_yaml
-from flagbot_sim.resim import motor_samples, resimulate
+from flagbot_sim.runs.resim import motor_samples, resimulate
 
 from cli_helpers import flagbot
 from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, call, set_params, spin_until

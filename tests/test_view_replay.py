@@ -15,7 +15,7 @@ from foxglove_client import Client
 
 from flagbot_sim import cli
 from flagbot_sim.bag import BagReader, BagWriter
-from flagbot_sim.resim import POSITION_TOLERANCE
+from flagbot_sim.runs.resim import POSITION_TOLERANCE
 from flagbot_sim.view import recorded
 from flagbot_sim.view.live import LiveView
 from flagbot_sim.view.replay import play

@@ -3,7 +3,9 @@
 `flagbot run`, cold and warm, as whole processes) and `flagbot bench flood` (sim_node's pace under a flood of
 valid commands from another process).
 
-Registration imports nothing heavy: the simulator is loaded only when a benchmark actually runs.
+The options of each benchmark are here (shared by ``flagbot bench X``, registered by
+:mod:`flagbot_sim.commands.bench`, and ``python -m flagbot_sim.bench.X``); they import nothing heavy: the simulator
+is loaded only when a benchmark actually runs.
 """
 
 
@@ -55,33 +57,3 @@ def flood_arguments(ap) -> None:
                     help="override a scene value (sim_node's scene_overrides), e.g. --set scene.preset=accurate")
     ap.add_argument("--publish-rate", type=float, default=50.0, help="sim_node's publish_rate (Hz)")
     ap.add_argument("--no-realtime", action="store_true", help="skip the real_time_factor 1 /clock check")
-
-
-def _run(module: str):
-    def run(args):
-        import importlib
-        return importlib.import_module(f"flagbot_sim.bench.{module}").run(args)
-    return run
-
-
-def register(sub) -> None:
-    p = sub.add_parser("bench", help="benchmarks: accuracy vs time, throughput, start-up time")
-    bsub = p.add_subparsers(dest="bench", required=True)
-    a = bsub.add_parser("accuracy", help="error of the steady outputs vs wall time over a grid of dt x edge length")
-    accuracy_arguments(a)
-    a.set_defaults(func=_run("accuracy"))
-    s = bsub.add_parser("speed", help="steps/s, real-time factor, per-phase breakdown, cost vs DOF, PyElastica")
-    speed_arguments(s)
-    s.set_defaults(func=_run("speed"))
-    m = bsub.add_parser("memory", help="resident memory of a simulation and of sim_node from 1 to 60 simulated minutes")
-    m.add_argument("--run-only", action="store_true", help="only the simulation (no ROS)")
-    m.add_argument("--node-only", action="store_true", help="only sim_node")
-    m.set_defaults(func=_run("memory"))
-    t = bsub.add_parser("startup", help="start-up of `flagbot run` as whole processes: cold (empty kernel cache) / "
-                                        "warm and warm / `python -c 'import numpy, scipy.sparse, numba'`")
-    startup_arguments(t)
-    t.set_defaults(func=_run("startup"))
-    f = bsub.add_parser("flood", help="sim_node's simulated seconds per wall second and /clock rate under a flood of "
-                                      "valid cmd_omega from another process")
-    flood_arguments(f)
-    f.set_defaults(func=_run("flood"))

@@ -6,10 +6,7 @@
 Layout: ``data`` (DATA.csv: inputs, measured outputs, weights), ``evaluate`` (steady states of many scene
 variants as engine tasks, continued along the motor speed), ``pool`` (the sweep engines kept open over many
 batches), ``fit`` (weighted least squares, confidence intervals, identifiability, prediction), ``optimize``
-(coarse grid + local refinement of a design space), ``plots``, ``cli``. See docs/usage.md "Fitting and design".
+(coarse grid + local refinement of a design space), ``plots``; the commands ``flagbot fit`` and ``optimize``
+are :mod:`flagbot_sim.commands.fit`. See docs/usage.md "Fitting and design".
 """
 
-
-def register(subparsers) -> None:
-    from .cli import register as _register
-    _register(subparsers)

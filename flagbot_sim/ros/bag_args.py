@@ -3,8 +3,9 @@ profile (:mod:`.cmd_profile`), and the frame of their console scripts.
 
 Kept out of those modules because they import rclpy at load time, and ``flagbot``'s parser (which offers
 ``flagbot record`` and ``flagbot replay`` with these same arguments) and ``flagbot completion`` must not:
-building it for ``flagbot run`` would cost the rclpy import. Both the console scripts and :mod:`flagbot_sim.bagtools` take the arguments from
-here; nothing here imports either of them back.
+building it for ``flagbot run`` would cost the rclpy import. Both the console scripts and the commands
+(:mod:`flagbot_sim.commands.record`, :mod:`flagbot_sim.commands.replay`) take the arguments from here; nothing
+here imports either of them back.
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ def add_record_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_replay_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of :func:`flagbot_sim.ros.replay.run` and, with ``--resimulate``, of
-    :func:`flagbot_sim.resim.cmd_resimulate`."""
+    :func:`flagbot_sim.commands.replay.cmd_resimulate`."""
     p.add_argument("bag", help="MCAP file (or a rosbag2 directory holding one)")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (2 = twice as fast)")
     p.add_argument("--loop", action="store_true", help="start again at the end until interrupted")

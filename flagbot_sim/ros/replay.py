@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -33,7 +32,6 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from ..bag import BagError, BagReader, ScanReport, normalize_type
 from ..bag.tf import TF_MESSAGE
 from ..topics import CLOCK
-from .bag_args import add_replay_arguments, console_main
 from .recorder import message_class
 from .runtime import SLICE, release, ros_process
 from .tf_derive import NO_TF2, tf_message_class
@@ -264,24 +262,3 @@ def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
     if stats is not None:
         print(stats.format(), flush=True)
     return 0
-
-
-def command(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
-    """A ROS replay, or with ``--resimulate`` (no ROS) a re-simulation of the recorded commands."""
-    if args.resimulate:
-        from ..resim import cmd_resimulate
-        return cmd_resimulate(args)
-    if args.view:
-        from ..view.replay import cmd_replay_view
-        return cmd_replay_view(args)
-    return run(args, ros_args=ros_args or ["replay"])
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``replay`` console script: ``replay BAG [--rate R] [--loop] [--topics ...] [--exclude ...] [--ros-args ...]``
-    (``--resimulate``: no ROS, as ``flagbot replay --resimulate``)."""
-    return console_main("replay", "Replay an MCAP recording with its timing.", add_replay_arguments, command, argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -7,15 +7,12 @@ process pool or on a Dask cluster, and the paper's figures drawn from the CSV al
 
 Layout: ``grid`` (KEY=VALUES parsing and validation), ``task`` (one point, every framework: the unit of work),
 ``engines`` (serial / local / dask), ``store`` (the directory: manifest, CSV, resume), ``plots`` (figures and
-summary from the CSV), ``cli``. See docs/reproduction.md.
+summary from the CSV); the commands ``flagbot sweep`` and ``sweep-plot`` are
+:mod:`flagbot_sim.commands.sweep`. See docs/reproduction.md.
 """
 from .grid import ALIASES, Point, SweepError, expand, parse_grid, validate
 from .task import FRAMEWORKS, SteadySettings, run_point
 
-__all__ = ["ALIASES", "FRAMEWORKS", "Point", "SteadySettings", "SweepError", "expand", "parse_grid", "register",
-           "run_point", "validate"]
+__all__ = ["ALIASES", "FRAMEWORKS", "Point", "SteadySettings", "SweepError", "expand", "parse_grid", "run_point",
+           "validate"]
 
-
-def register(subparsers) -> None:
-    from .cli import register as _register
-    _register(subparsers)

@@ -4,7 +4,7 @@ The robot's shape comes from the recorded ``markers`` (sim_node's MarkerArray: e
 centre and radius, the plate arms, at ``marker_rate``), the head's orientation from ``head_pose`` and the numbers
 from ``joint_states`` (spin angles and rates, the command and its integral, the motor torque) and ``speed``, all
 matched by their simulation-time stamps. A recording without markers is re-simulated instead: the recorded scene
-and command stream (flagbot_sim/resim.py) run again, which reproduces the recorded motion to solver tolerance.
+and command stream (flagbot_sim/runs/resim.py) run again, which reproduces the recorded motion to solver tolerance.
 
 No ROS import: the messages are decoded by flagbot_sim.bag (mcap_ros2).
 """
@@ -42,7 +42,7 @@ class RecordedRun:
 def load(path: str | Path, namespace: str | None = None, *, max_rate: float | None = None) -> RecordedRun:
     """The frames of a recording (re-simulated when it has no markers). ``max_rate``: for a re-simulation, keep at
     most this many frames per simulated second (default: every recorded joint_states stamp)."""
-    from ..resim import ResimulationError, recorded_scene
+    from ..runs.resim import ResimulationError, recorded_scene
     with BagReader(path) as r:
         meta = r.run_metadata()
         try:
@@ -98,11 +98,11 @@ def _joint_values(js_rows, speed_rows) -> dict:
 
 
 def _resimulated(path, namespace, max_rate) -> RecordedRun:
-    """Frames from re-running the recorded commands (resim.py's plan: its schedule, across recorded restarts) at
+    """Frames from re-running the recorded commands (runs/resim.py's plan: its schedule, across recorded restarts) at
     the recorded joint_states stamps."""
     import dataclasses
 
-    from ..resim import plan_recording, replay
+    from ..runs.resim import plan_recording, replay
     plan, _ = plan_recording(path, namespace, with_pose=False)      # ResimulationError: nothing to re-run
     scene = plan.segments[0].scene if plan.segments else None
     notes = plan.notes + plan.uncompared

@@ -1,4 +1,5 @@
-"""``flagbot replay BAG --view``: play a recording into the Foxglove live view, with its recorded timing.
+"""Play a recording into the Foxglove live view with its recorded timing (``flagbot replay BAG --view``, whose
+command is :func:`flagbot_sim.commands.replay.cmd_replay_view`).
 
 No ROS is needed (the file is decoded by flagbot_sim.bag). ``--rate``, ``--loop`` and ``--start-offset`` mean what
 they mean for the ROS replay; the view shows at most its ``max_rate`` frames per second of wall time, skipping
@@ -6,11 +7,10 @@ frames in between (the last one is always shown).
 """
 from __future__ import annotations
 
-import sys
 import threading
 import time
 
-from .recorded import RecordedRun, load
+from .recorded import RecordedRun
 
 
 def play(run: RecordedRun, view, *, rate: float = 1.0, loop: bool = False, start_offset: float = 0.0,
@@ -33,33 +33,3 @@ def play(run: RecordedRun, view, *, rate: float = 1.0, loop: bool = False, start
             shown += view.publish(f, force=(k == 0 or k == len(frames) - 1))
         if not loop or stop.is_set():
             return shown
-
-
-def cmd_replay_view(args) -> int:
-    """``flagbot replay BAG --view [--rate R] [--loop] [--start-offset S] [--view-port P] [--view-wait S]``."""
-    from ..bag import BagError
-    from ..resim import ResimulationError
-    from .cli import open_live_view, wait_or_note
-    try:
-        run = load(args.bag, args.namespace or None)
-    except (BagError, ResimulationError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    for n in run.notes:
-        print(f"note: {n}", file=sys.stderr)
-    view = open_live_view(args)
-    try:
-        wait_or_note(view, args.view_wait, "playing")
-        try:
-            shown = play(run, view, rate=args.rate, loop=args.loop, start_offset=args.start_offset)
-        except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        except KeyboardInterrupt:
-            shown = None
-    finally:
-        view.close()
-    span = run.frames[-1].t - run.frames[0].t
-    sent = "interrupted" if shown is None else f"sent {shown} of {len(run.frames)} frames to the view"
-    print(f"{sent} ({run.source}, {span:.3f} s of simulated time)", flush=True)
-    return 0

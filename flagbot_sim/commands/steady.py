@@ -8,8 +8,8 @@ from __future__ import annotations
 import math
 import sys
 
-from .cliutil import add_scene_arguments, json_output, process_age
-from .scene import RPM, SceneError, load_scene
+from ..cliutil import add_scene_arguments, json_output, process_age
+from ..scene import RPM, SceneError, load_scene
 
 
 def register(sub) -> None:
@@ -37,9 +37,9 @@ def parse_rpm_list(text: str) -> list[float]:
 def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = True) -> list[dict]:
     """The steady state of ``scene`` at each motor speed (rpm; default the scene's), as summary dicts. A failure
     at one speed is that entry's ``error``; the next speed starts again from the straight robot."""
-    from .physics import warmup
-    from .physics.model import RobotModel
-    from .physics.steady import SteadyFailed, SteadySolver, summary
+    from ..physics import warmup
+    from ..physics.model import RobotModel
+    from ..physics.steady import SteadyFailed, SteadySolver, summary
     compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
     model = RobotModel(scene)
     solver = SteadySolver(model)

@@ -1,12 +1,12 @@
-"""Recording commands for ``python -m flagbot_sim``: ``record``, ``replay``, ``bag-summary``, ``bag-recover``.
+"""Recordings as data: ``bag-summary``'s analysis of an MCAP file (no ROS, no argparse).
 
-Only ``record`` and ``replay`` import rclpy (when they run); the analysis works from the MCAP file alone.
-
-``bag-summary`` finds the omega_T steps in the ``cmd_omega`` stream (a new step whenever the commanded value
-changes) and reports, for each, the steady omega_h, omega_t and v: the mean of the ``omega_h``, ``omega_t`` and
-``speed`` topics (std_msgs/Float64) over the last ``--tail`` fraction of the step. The time axis is the simulation
-time from the recorded /clock when there is one (log/receive time otherwise), so steps are measured in simulated
-seconds even when the simulator ran faster or slower than real time.
+:func:`summarize` finds the omega_T steps in the ``cmd_omega`` stream (a new step whenever the commanded value
+changes; the exact steps from the ``motor`` joint when the recording has it) and reports, for each, the steady
+omega_h, omega_t and v: the mean of the ``omega_h``, ``omega_t`` and ``speed`` topics (std_msgs/Float64) over the
+last ``tail`` fraction of the step. The time axis is the simulation time from the recorded /clock when there is
+one (log/receive time otherwise), so steps are measured in simulated seconds even when the simulator ran faster
+or slower than real time. :func:`format_summary` and :func:`summary_figure` are its text and its plot; the
+``flagbot bag-summary`` command (:mod:`flagbot_sim.commands.bag`) prints them.
 """
 from __future__ import annotations
 
@@ -14,51 +14,10 @@ import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of, recover
-from .cliutil import check_figure_file, check_out_file, json_output
-from .ros.bag_args import add_record_arguments, add_replay_arguments, fail as _fail  # ROS-free: no rclpy import
-from .topics import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
+from ..bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of
+from ..scene import RPM
+from ..topics import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
 
-RPM = 2.0 * math.pi / 60.0
-
-
-def cmd_record(args) -> int:
-    try:
-        from .ros.recorder import run
-        return run(args, ros_args=["record"])
-    except BagError as exc:
-        return _fail(exc)
-
-
-def cmd_replay(args) -> int:
-    """``flagbot replay``: a ROS replay, or with ``--resimulate`` a re-simulation (no ROS: rclpy is not loaded)."""
-    if args.resimulate:
-        from .resim import cmd_resimulate
-        return cmd_resimulate(args)
-    if args.view:
-        from .view.replay import cmd_replay_view
-        return cmd_replay_view(args)
-    try:
-        from .ros.replay import run
-        return run(args, ros_args=["replay"])
-    except BagError as exc:
-        return _fail(exc)
-
-
-def cmd_recover(args) -> int:
-    out = args.output or str(Path(args.bag).with_suffix("")) + ".recovered.mcap"
-    check_out_file(out, "--output")                   # before the damaged file is scanned
-    try:
-        rep = recover(args.bag, out, overwrite=args.overwrite)
-    except BagError as exc:
-        return _fail(exc)
-    print(rep.describe_loss() or f"{args.bag}: intact, nothing lost")
-    print(f"wrote {out}: {rep.messages} messages, valid and indexed")
-    return 0
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# analysis
 
 
 @dataclass
@@ -87,7 +46,7 @@ def _initial_omega(meta) -> float | None:
     try:
         import tomllib
 
-        from .scene import scene_from_dict
+        from ..scene import scene_from_dict
         return float(scene_from_dict(tomllib.loads(meta.scene_toml)).omega_T)
     except Exception:
         return None
@@ -118,7 +77,7 @@ def summarize(path: str | Path, *, namespace: str | None = None, tail: float = 0
                            f"{r.path}: the recording holds no message: nothing to summarise")
         meta = r.run_metadata()
         topics = r.topics
-        from .bag.lost import LOST_METADATA_NAME, counts_from_record
+        from ..bag.lost import LOST_METADATA_NAME, counts_from_record
         lost = counts_from_record(r.metadata_named(LOST_METADATA_NAME))   # None: not counted (an older recorder)
         cmd_topic = find_topic(topics, CMD_OMEGA, namespace)
         ns = namespace
@@ -286,46 +245,3 @@ def plot_summary(s: dict, out: str | Path) -> None:
     fig = summary_figure(s)
     fig.savefig(out, dpi=110)
     plt.close(fig)
-
-
-def cmd_summary(args) -> int:
-    if args.plot:
-        check_figure_file(args.plot, "--plot")       # before the file is read: a refusal is one line, exit 2
-    try:
-        s = summarize(args.bag, namespace=args.namespace, tail=args.tail, time_axis=args.time)
-    except BagError as exc:
-        return _fail(exc)
-    if args.plot:
-        plot_summary(s, args.plot)
-    if args.json:
-        s = dict(s)
-        s.pop("series")
-        print(json_output(s))
-    else:
-        print(format_summary(s))
-        if args.plot:
-            print(f"plot: {args.plot}")
-    return 0
-
-
-def register(subparsers) -> None:
-    p = subparsers.add_parser("record", help="record flagbot topics to MCAP (rosbag2 layout) until Ctrl-C")
-    add_record_arguments(p)
-    p.set_defaults(func=cmd_record)
-    p = subparsers.add_parser("replay", help="replay an MCAP recording with its timing and /clock")
-    add_replay_arguments(p)
-    p.set_defaults(func=cmd_replay)
-    p = subparsers.add_parser("bag-summary", help="topics, counts, duration and the steady state of each omega_T step")
-    p.add_argument("bag")
-    p.add_argument("--plot", metavar="PNG", help="write a plot of v, omega_h, omega_t over time")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--tail", type=float, default=0.25, help="fraction of each step averaged as steady (default 0.25)")
-    p.add_argument("--time", choices=["auto", "sim", "log"], default="auto",
-                   help="time axis: sim (from /clock), log (receive time) or auto (sim if /clock was recorded)")
-    p.add_argument("--namespace", default=None, help="robot namespace (default: found from the topics)")
-    p.set_defaults(func=cmd_summary)
-    p = subparsers.add_parser("bag-recover", help="rewrite the readable part of a damaged MCAP file into a valid one")
-    p.add_argument("bag")
-    p.add_argument("-o", "--output", help="output file (default: BAG.recovered.mcap)")
-    p.add_argument("--overwrite", action="store_true")
-    p.set_defaults(func=cmd_recover)

@@ -6,10 +6,10 @@ import signal
 import sys
 import time
 
-from .engines import ENGINES, default_workers, run_tasks, worker_count
-from .grid import SweepError, parse_grid, validate
-from .store import SweepStore, manifest_identity
-from .task import FRAMEWORKS, SteadySettings, make_task
+from ..sweep.engines import ENGINES, default_workers, run_tasks, worker_count
+from ..sweep.grid import SweepError, parse_grid, validate
+from ..sweep.store import SweepStore, manifest_identity
+from ..sweep.task import FRAMEWORKS, SteadySettings, make_task
 
 #: default cap on simulated time per DER run (s). Design 1 (eta_p L^4/EI ~ 28 s) is steady after ~12-20 s at
 #: 20-250 rpm with the default 2 s window and rtol 1e-3; design 2 after ~6-10 s
@@ -149,7 +149,7 @@ def cmd_sweep(args) -> int:
 
 
 def _plot(directory) -> int:
-    from .plots import format_summary, make_all
+    from ..sweep.plots import format_summary, make_all
     out = make_all(directory)
     print(format_summary(out["summary"]))
     print("figures: " + ", ".join(out["figures"]))

@@ -9,9 +9,9 @@ from pathlib import Path
 from ..cliutil import add_scene_arguments, json_output, make_out_dir
 from ..scene import RPM, load_scene
 from ..sweep.engines import ENGINES, default_workers
-from .data import _short_key
-from .evaluate import RPM_KEY
-from .pool import Engine
+from ..fit.data import _short_key
+from ..fit.evaluate import RPM_KEY
+from ..fit.pool import Engine
 
 
 def _engine_arguments(p) -> None:
@@ -95,8 +95,8 @@ def _g(x, spec=".4g", missing="--") -> str:
 # ---------------------------------------------------------------- fit
 def _fit_curves(scene, data_sets, engine) -> dict:
     """The fitted model along the motor speed for every group of rows whose speed varies."""
-    from .evaluate import _group_key, evaluate
-    from .plots import _group_label
+    from ..fit.evaluate import _group_key, evaluate
+    from ..fit.plots import _group_label
     groups: dict[str, dict] = {}
     for data in data_sets:
         for r in data.rows:
@@ -197,7 +197,7 @@ def _row_lines(title: str, rows: list[dict], outputs: list[str], r_needs_std: bo
 def _interruptible(command):
     """Ctrl-C or SIGTERM (a batch scheduler's stop, as for sweeps): the pool's workers are stopped (Engine's
     exit), one line instead of a traceback, status 128 + the signal."""
-    from ..sweep.cli import Terminated, _on_sigterm
+    from .sweep import Terminated, _on_sigterm
 
     def run(args) -> int:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -222,14 +222,14 @@ def cmd_optimize(args) -> int:
 
 
 def _cmd_fit(args) -> int:
-    from .data import read_data
-    from .fit import parse_bounds, parse_parameters, predict, run_fit
+    from ..fit.data import read_data
+    from ..fit.fit import parse_bounds, parse_parameters, predict, run_fit
     base = load_scene(args.scene, args.overrides)
     params = parse_parameters(args.fit, base, parse_bounds(args.bounds))
     data = read_data(args.data, base, exclude=tuple(p.key for p in params))
     held = read_data(args.predict, base, exclude=tuple(p.key for p in params)) if args.predict else None
     if args.max_evaluations < 1:
-        from .fit import FitError
+        from ..fit.fit import FitError
         raise FitError(f"--max-evaluations must be at least 1, got {args.max_evaluations}")
     out_dir = make_out_dir(args.out or f"fit-{base.scene.name}")
     with Engine(args.engine, args.workers, args.scheduler) as engine:
@@ -252,7 +252,7 @@ def _cmd_fit(args) -> int:
                   f"# data: {args.data} ({len(data.rows)} rows), chi^2 = {result.chi2:.4g}, dof = {result.dof}", ""]
         Path(files["scene"]).write_text("\n".join(header) + fitted.to_toml())
         if not args.no_plot:
-            from .plots import figure_fit
+            from ..fit.plots import figure_fit
             curves = _fit_curves(fitted, [data] + ([held] if held is not None else []), engine)
             title = "; ".join(f"{_short_key(e.key)} = {e.value:.4g}" + ("" if e.identifiable else " (n.i.)")
                               for e in result.estimates)
@@ -320,8 +320,8 @@ def format_search(res: dict, top: int) -> str:
 
 
 def _cmd_optimize(args) -> int:
-    from .fit import FitError
-    from .optimize import parse_vary, run_search
+    from ..fit.fit import FitError
+    from ..fit.optimize import parse_vary, run_search
     base = load_scene(args.scene, args.overrides)
     variables = parse_vary(args.vary, base)
     if args.top < 1 or args.max_evaluations < 1:
@@ -334,7 +334,7 @@ def _cmd_optimize(args) -> int:
                          max_evaluations=args.max_evaluations, progress=lambda t: _say(args, "  " + t))
     files = {"json": str(out_dir / "optimize.json")}
     if not args.no_plot:
-        from .plots import figure_design
+        from ..fit.plots import figure_design
         files["plot"] = str(out_dir / "optimize.png")
         figure_design(res).savefig(files["plot"], dpi=110)
     res["files"] = files

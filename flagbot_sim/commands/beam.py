@@ -8,8 +8,8 @@ from __future__ import annotations
 import math
 
 from ..scene import RPM, SceneError, load_scene
-from .balance import REGIMES, solve_balance_curve
-from .params import BeamParams
+from ..beam.balance import REGIMES, solve_balance_curve
+from ..beam.params import BeamParams
 
 
 def parse_rpm_list(text: str) -> list[float]:

@@ -31,17 +31,16 @@ in omega_h within 3 s, tests/test_replay_cli.py).
 from __future__ import annotations
 
 import math
-import sys
 import tomllib
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
 
 import numpy as np
 
-from .bag import BagError, BagReader, find_topic, header_seconds
-from .physics import Simulation, StepFailed
-from .topics import HEAD_POSE, JOINT_STATES, RESETS
-from .scene import Scene, SceneError, node_overrides, scene_from_dict
+from ..bag import BagReader, find_topic, header_seconds
+from ..physics import Simulation, StepFailed
+from ..topics import HEAD_POSE, JOINT_STATES, RESETS
+from ..scene import Scene, SceneError, node_overrides, scene_from_dict
 
 #: largest head position difference (m) still counted as the same motion: Newton's tolerance, see above
 POSITION_TOLERANCE = 1e-8
@@ -473,23 +472,3 @@ def format_report(res: Resimulation, path) -> str:
     lines += [f"  note: {n}" for n in res.notes]
     lines.append(res.verdict())
     return "\n".join(lines)
-
-
-def cmd_resimulate(args) -> int:
-    """``flagbot replay --resimulate BAG [--json] [--namespace NS]``: the report and its verdict; exit 0 when the
-    whole recording is reproduced, 1 when it differs or only part of it could be compared (PARTIAL, NOT CHECKED),
-    2 when it cannot be re-simulated."""
-    from .cliutil import json_output
-    from .progress import ProgressBar
-    try:
-        bar = ProgressBar(100.0, label="re-simulating", unit="%", enabled=not args.json)
-        res = resimulate(args.bag, args.namespace or None, progress=lambda f: bar.update(100.0 * f))
-        bar.close()
-    except (BagError, ResimulationError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json_output({"bag": str(args.bag), **res.to_dict()}))
-    else:
-        print(format_report(res, args.bag))
-    return 0 if res.reproduced else 1
