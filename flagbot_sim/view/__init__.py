@@ -5,8 +5,9 @@
 - :mod:`.scene_msgs` Foxglove messages of it (SceneUpdate, FrameTransforms, the plotted numbers): ``[view]`` extra;
 - :mod:`.live`       :class:`~.live.LiveView`, the Foxglove WebSocket server (``flagbot run --view``, sim_node);
 - :mod:`.replay`     a recording played into a LiveView (``flagbot replay --view``), no ROS needed;
-- :mod:`.render`     the paper's Fig. 1 layout drawn with matplotlib (``flagbot render``), and its GIF;
-- :mod:`.cli`        the ``render`` command and the ``--view`` options of ``flagbot run``.
+- :mod:`.render`     the paper's Fig. 1 layout drawn with matplotlib, and its GIF (the ``flagbot render`` command is
+                     :mod:`flagbot_sim.commands.render`);
+- :mod:`.cli`        the live view of ``flagbot run --view`` and ``flagbot replay --view``; :mod:`.args` their options.
 
 Nothing here imports ROS; only :mod:`.scene_msgs` and :mod:`.live` need foxglove-sdk, and only when used.
 """

@@ -1,7 +1,7 @@
 """The live view on the command line: ``flagbot run SCENE --view`` (:class:`RunView`) and the server start shared
-with ``flagbot replay BAG --view`` (:mod:`.replay`). The options themselves are in :mod:`.args`; ``flagbot render``
-is registered by :mod:`.render`. Nothing here imports foxglove at load time: building ``flagbot``'s parser does not
-cost it.
+with ``flagbot replay BAG --view`` (:func:`flagbot_sim.commands.replay.cmd_replay_view`), both driven by the
+commands (:mod:`flagbot_sim.commands`), which this module does not import. The options themselves are in
+:mod:`.args`. Nothing here imports foxglove at load time: building ``flagbot``'s parser does not cost it.
 """
 from __future__ import annotations
 
