@@ -179,6 +179,10 @@ class FlagellumSection:
     youngs_modulus: float = _f(1.2e6, "Pa", "Young's modulus E", gt=0.0, le=1.0e13)
     poisson_ratio: float = _f(0.5, "", "Poisson's ratio (G = E / (2(1+nu)))", ge=-0.99, le=0.5)
     density: float = _f(1000.0, "kg/m^3", "density of flagella, plate and head", gt=0.0, le=1.0e5)
+    helix_pitch: float = _f(0.0, "m", "natural shape: 0 = straight; otherwise a helix coaxial with the robot "
+                                      "through the flagellum's attachment point (radius plate.diameter/2), "
+                                      "advancing |P| per turn, P > 0 right-handed, P < 0 left-handed",
+                            ge=-MAX_LENGTH, le=MAX_LENGTH)
 
 
 @dataclass(frozen=True)
@@ -570,6 +574,7 @@ def _check_consistency(sc: Scene) -> None:
     if fl.length / fl.edge_length > 20000:
         raise SceneError(f"flagellum.edge_length = {fl.edge_length} m gives more than 20000 edges per flagellum")
     _check_proportions(sc)
+    _check_helix(sc)
     if sc.numerics.min_dt >= sc.time.dt:
         raise SceneError(f"numerics.min_dt = {sc.numerics.min_dt} s must be smaller than time.dt = {sc.time.dt} s")
     _check_force_tol(sc)
@@ -585,6 +590,29 @@ def _check_consistency(sc: Scene) -> None:
             raise SceneError(f"robot.n_flagella = {sc.robot.n_flagella}: the 'clamp' scene drives exactly one "
                              "flagellum; set robot.n_flagella = 1")
         # (a fast clamp needs no refusal: every step is split so that it turns at most time.max_turn)
+
+
+#: a helical flagellum needs at least this many edges per turn (each edge turns the tangent by at most 2 pi / 8
+#: about the axis: the discrete helix is then within 1 - sin(x)/x < 2.6% of the pitch angle's tangent)
+HELIX_EDGES_PER_TURN = 8
+
+
+def _check_helix(sc: Scene) -> None:
+    """Refuse a helical flagellum whose turns touch (|P| <= 2 r0) or that its edges cannot resolve."""
+    fl = sc.flagellum
+    P = fl.helix_pitch
+    if P == 0.0:
+        return
+    if abs(P) <= 2.0 * fl.radius:
+        raise SceneError(f"flagellum.helix_pitch = {P:g} m: its turns would overlap; |P| must exceed the "
+                         f"flagellum's diameter 2 r0 = {2 * fl.radius:g} m")
+    turn = math.hypot(P, 2.0 * math.pi * sc.R_d)         # arc length of one turn
+    n_seg = max(1, round(fl.length / fl.edge_length))
+    if fl.length / n_seg > turn / HELIX_EDGES_PER_TURN:
+        raise SceneError(f"flagellum.helix_pitch = {P:g} m: one turn is {turn:.3g} m of flagellum, which its "
+                         f"{fl.length / n_seg:.3g} m edges cannot resolve; use flagellum.edge_length <= "
+                         f"{turn / HELIX_EDGES_PER_TURN:.3g} m ({HELIX_EDGES_PER_TURN} edges per turn) or a longer "
+                         "|pitch|")
 
 
 def _check_force_tol(sc: Scene) -> None:

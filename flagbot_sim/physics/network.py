@@ -138,6 +138,36 @@ def flagellum_edge_count(length: float, edge_length: float) -> int:
     return max(1, int(round(length / edge_length)))
 
 
+def helix_angle(radius: float, pitch: float) -> float:
+    """Pitch angle theta (rad) between the tangent and the axis of a helix of ``radius`` advancing |``pitch``|
+    per turn: tan(theta) = 2 pi R / |P| (0 for a straight flagellum, pitch = 0)."""
+    return 0.0 if pitch == 0.0 else math.atan2(2.0 * math.pi * radius, abs(pitch))
+
+
+def flagellum_centreline(s: np.ndarray, phi: float, radius: float, pitch: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rest centreline of a flagellum attached at azimuth ``phi`` and distance ``radius`` from the robot axis
+    (x), at arc lengths ``s`` (m) from its base, and its unit tangent at the base: (len(s), 3), (3,).
+
+    ``pitch`` = 0: straight along +x. Otherwise a helix coaxial with the robot through the attachment point,
+    advancing |pitch| along +x per turn; pitch > 0 is right-handed (the azimuth grows with x), pitch < 0
+    left-handed: x = s cos(theta), azimuth phi + sign(P) s sin(theta) / R, theta = :func:`helix_angle`. The
+    nodes lie exactly on it, so the rod's rest curvature and twist (computed from the nodes and frames by
+    :class:`~.elastic.ElasticModel`) are the discrete helix's."""
+    s = np.asarray(s, float)
+    if pitch == 0.0:
+        out = np.zeros((len(s), 3))
+        out[:, 0] = s
+        out[:, 1] = radius * math.cos(phi)
+        out[:, 2] = radius * math.sin(phi)
+        return out, np.array([1.0, 0.0, 0.0])
+    th = helix_angle(radius, pitch)
+    chi = math.copysign(1.0, pitch)
+    psi = phi + chi * s * math.sin(th) / radius
+    out = np.stack([s * math.cos(th), radius * np.cos(psi), radius * np.sin(psi)], axis=1)
+    t0 = np.array([math.cos(th), -chi * math.sin(th) * math.sin(phi), chi * math.sin(th) * math.cos(phi)])
+    return out, t0
+
+
 def build_network(scene) -> RodNetwork:
     """Build the robot (or, for a clamp scene, the driven plate + one flagellum) described by ``scene``."""
     fl = scene.flagellum
@@ -184,11 +214,14 @@ def build_network(scene) -> RodNetwork:
         net_labels.update(joint_node=x2)
 
     plate_edges, socket_edges, fl_nodes, fl_edges, fl_vor = [], [], [], [], []
+    pitch = fl.helix_pitch
     for i in range(n):
         phi = 2.0 * math.pi * i / n
         radial = np.array([0.0, math.cos(phi), math.sin(phi)])
-        r = b.node(np.array([x_plate, 0.0, 0.0]) + R_d * radial)
-        p = b.node(R_d * radial)
+        centre, t0 = flagellum_centreline(np.arange(n_seg + 1) * ds, phi, R_d, pitch)
+        # the socket points along the flagellum's base tangent, so the base hinge stays a (nearly) straight one
+        r = b.node(np.array([x_plate, 0.0, 0.0]) + R_d * radial if pitch == 0.0 else centre[0] - s_len * t0)
+        p = b.node(centre[0])
         e_arm = b.edge(x2, r, rEA, False, rod_m, rod_j)
         e_sock = b.edge(r, p, rEA, False, rod_m, rod_j)
         plate_edges.append(e_arm)
@@ -198,7 +231,7 @@ def build_network(scene) -> RodNetwork:
         edges_i = []
         prev_edge = e_sock
         for k in range(1, n_seg + 1):
-            nk = b.node(R_d * radial + np.array([k * ds, 0.0, 0.0]))
+            nk = b.node(centre[k])
             ek = b.edge(nodes_i[-1], nk, EA, True, rod_m, rod_j)
             # Voronoi length counts elastic edges only: the base hinge represents the half cell [0, ds/2]
             vor = 0.5 * ds if k == 1 else ds

@@ -36,6 +36,7 @@ import scipy.sparse.linalg as spla
 from .effects import StepContext
 from .frames import EdgeFrames
 from .model import RobotModel, State
+from .network import helix_angle
 from .observe import efficiency
 from .warmup import kernels_mode
 
@@ -358,14 +359,17 @@ class SteadySolver:
                            f"{omega_T:.6g} rad/s (residual {self._norm(r):.3g} N, tolerance {self.tol:.3g} N)")
 
     def initial_guess(self, omega_T: float):
-        """The straight robot turning as a rigid body, with the torque balance of straight flagella:
-        omega_h c_h = n eta_p L R_d^2 omega_t, omega_h + omega_t = omega_T."""
+        """The undeformed robot turning as a rigid body, with the torque balance of its rigid flagella:
+        omega_h c_h = n L R_d^2 (eta_t sin^2 theta + eta_p cos^2 theta) omega_t, omega_h + omega_t = omega_T
+        (theta the helix angle; 0 for straight flagella)."""
         sc = self.model.scene
         q = self.net.initial_q()
         if self.clamped:
             return q, omega_T, 0.0
         c_h = sc.head_torque_coefficient if "head_torque" in sc.effects else 0.0
-        c_t = sc.robot.n_flagella * sc.eta_p * sc.flagellum.length * sc.R_d ** 2 if "rft" in sc.effects else 0.0
+        th = helix_angle(sc.R_d, sc.flagellum.helix_pitch)
+        drag = sc.eta_t * math.sin(th) ** 2 + sc.eta_p * math.cos(th) ** 2
+        c_t = sc.robot.n_flagella * drag * sc.flagellum.length * sc.R_d ** 2 if "rft" in sc.effects else 0.0
         omega_t = omega_T * c_h / (c_h + c_t) if c_h + c_t > 0 else 0.5 * omega_T
         return q, omega_t, 0.0
 
