@@ -22,7 +22,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .physics import medium as _medium
 from .physics.effects import EFFECT_TYPES
+from .physics.medium import MODELS as MEDIUM_MODELS
 from .physics.network import NEWTON_ROUNDOFFS, build_network
 
 RPM = 2.0 * math.pi / 60.0  # rad/s per rpm
@@ -187,7 +189,12 @@ class FlagellumSection:
 
 @dataclass(frozen=True)
 class MediumSection:
-    mu: float = _f(6.828, "Pa*s", "medium coefficient mu (RFT and Stokes terms)", gt=0.0, le=1.0e10)
+    model: str = _f("granular_rft", "", "the medium: 'granular_rft' (the paper's: mu an effective coefficient, head "
+                                        "law with C1, C2) or 'viscous' (a Newtonian fluid of viscosity mu: "
+                                        "Gray-Hancock / Lighthill RFT, exact Stokes head)",
+                    choices=tuple(MEDIUM_MODELS))
+    mu: float = _f(6.828, "Pa*s", "medium coefficient mu (RFT and Stokes terms): granular_rft's fitted effective "
+                                  "value, or the viscous fluid's dynamic viscosity", gt=0.0, le=1.0e10)
     # the 'granular_yield' effect's constants (docs/physics.md, "Granular yield"): the default puts design 1's
     # threshold (n = 2) at the paper's omega_T^s ~ 50 rpm
     yield_force: float = _f(5.35e-4, "N", "granular yield: force the head must overcome to move (used only with "
@@ -298,24 +305,37 @@ class Scene:
         return self.EI / self.flagellum.length ** 2
 
     @property
+    def rft_coefficients(self) -> tuple[float, float]:
+        """(eta_t, eta_p) of the medium's RFT (N s/m^2): :func:`flagbot_sim.physics.medium.rft_coefficients`."""
+        fl = self.flagellum
+        return _medium.rft_coefficients(self.medium.model, self.medium.mu, fl.length, fl.radius, self.R_d,
+                                        fl.helix_pitch)
+
+    @property
+    def rft_formula(self) -> str:
+        """Which formula gives the RFT coefficients ('paper_granular_rft', 'gray_hancock_1955', 'lighthill_1976')."""
+        fl = self.flagellum
+        return _medium.rft_length_scale(self.medium.model, fl.length, self.R_d, fl.helix_pitch)[1]
+
+    @property
     def eta_t(self) -> float:
-        L, r0, mu = self.flagellum.length, self.flagellum.radius, self.medium.mu
-        return 2.0 * math.pi * mu / (math.log(2.0 * L / r0) - 0.5)
+        return self.rft_coefficients[0]
 
     @property
     def eta_p(self) -> float:
-        L, r0, mu = self.flagellum.length, self.flagellum.radius, self.medium.mu
-        return 4.0 * math.pi * mu / (math.log(2.0 * L / r0) + 0.5)
+        return self.rft_coefficients[1]
 
     @property
     def head_drag_coefficient(self) -> float:
-        """C1 * 6 pi mu R_h (N s/m)."""
-        return self.head.C1 * 6.0 * math.pi * self.medium.mu * self.head.radius
+        """N s/m: C1 6 pi mu R_h (granular_rft), 6 pi mu R_h (viscous)."""
+        h = self.head
+        return _medium.head_coefficients(self.medium.model, self.medium.mu, h.radius, h.C1, h.C2)[0]
 
     @property
     def head_torque_coefficient(self) -> float:
-        """C2 * 8 pi mu R_h^3 (N m s)."""
-        return self.head.C2 * 8.0 * math.pi * self.medium.mu * self.head.radius ** 3
+        """N m s: C2 8 pi mu R_h^3 (granular_rft), 8 pi mu R_h^3 (viscous)."""
+        h = self.head
+        return _medium.head_coefficients(self.medium.model, self.medium.mu, h.radius, h.C1, h.C2)[1]
 
     @property
     def relaxation_time(self) -> float:
@@ -568,6 +588,13 @@ def _check_consistency(sc: Scene) -> None:
     if 2.0 * fl.length / fl.radius <= math.exp(0.5):
         raise SceneError("flagellum.length / flagellum.radius is too small for resistive-force theory "
                          f"(needs log(2L/r0) > 1/2, got 2L/r0 = {2 * fl.length / fl.radius:.3g})")
+    slender = _medium.slenderness_problem(sc.medium.model, fl.length, fl.radius, sc.R_d, fl.helix_pitch)
+    if slender:
+        raise SceneError(f"flagellum.radius = {fl.radius:g} m is too thick for Lighthill's resistive-force theory of "
+                         f"this helix (flagellum.helix_pitch = {fl.helix_pitch:g} m): it {slender}")
+    if sc.medium.model == "viscous" and "granular_yield" in eff:
+        raise SceneError("scene.effects: 'granular_yield' is the granular medium's yield; medium.model = 'viscous' "
+                         "has none (remove the effect, or use medium.model = 'granular_rft')")
     if fl.edge_length > fl.length:
         raise SceneError(f"flagellum.edge_length = {fl.edge_length} m must not exceed flagellum.length = "
                          f"{fl.length} m")

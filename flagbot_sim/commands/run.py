@@ -113,6 +113,9 @@ def format_summary(scene, out: dict) -> str:
                   f"  v       = {g('v', '+.6e')} m/s ({g('v', '+.4f', 1e3)} mm/s, positive = head first)",
                   f"  normalised: omega_T_bar = {finite_text(scene.normalise_omega(omega_T), '.2f')}, "
                   f"v_bar = {finite_text(None if v is None else scene.normalise_speed(v), '.4f')}"]
+    if out.get("rft_coefficients"):
+        from ..physics.medium import describe
+        lines.append("  " + describe(out["rft_coefficients"]))
     lines.append(f"  steady over the last {g('window', '.2f')} s: {'yes' if out.get('steady') else 'NO (run longer)'}")
     timing = f"{g('wall_seconds', '.2f')} s wall, real-time factor {g('real_time_factor', '.2f')}"
     if out.get("startup_seconds") is not None:

@@ -38,6 +38,7 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
     """The steady state of ``scene`` at each motor speed (rpm; default the scene's), as summary dicts. A failure
     at one speed is that entry's ``error``; the next speed starts again from the straight robot."""
     from ..physics import warmup
+    from ..physics.medium import coefficients_report
     from ..physics.model import RobotModel
     from ..physics.steady import SteadyFailed, SteadySolver, summary
     compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
@@ -51,7 +52,8 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
             sol = solver.solve(w, start=prev)
         except SteadyFailed as exc:
             out.append({"scene": scene.scene.name, "n_flagella": scene.robot.n_flagella, "omega_T": w,
-                        "steady": False, "method": "steady", "error": str(exc)})
+                        "steady": False, "method": "steady", "error": str(exc),
+                        "rft_coefficients": coefficients_report(scene)})
             prev = None
             continue
         row = summary(model, sol)
@@ -82,6 +84,9 @@ def format_row(scene, row: dict) -> str:
                   f"  omega_t = {row['omega_t']:+.5f} rad/s ({row['omega_t'] / RPM:+.2f} rpm)",
                   f"  v       = {row['v']:+.6e} m/s ({1e3 * row['v']:+.4f} mm/s, positive = head first)",
                   f"  motor torque = {row['motor_torque']:+.6e} N m"]
+    if row.get("rft_coefficients"):
+        from ..physics.medium import describe
+        lines.append("  " + describe(row["rft_coefficients"]))
     st = row.get("stability")
     if st is not None:
         tc = st["slowest_time_constant"]

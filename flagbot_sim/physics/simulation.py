@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 from . import warmup
+from .medium import coefficients_report
 from .model import RobotModel
 from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, efficiency
 from .stepper import Stepper, StepStats
@@ -259,6 +260,7 @@ class Simulation:
             "real_time_factor": self.state.t / self.wall_seconds if self.wall_seconds > 0 else None,
             "compile_seconds": self.compile_seconds,
             "kernels": warmup.kernels_mode(),
+            "rft_coefficients": coefficients_report(self.scene),
         }
         if self.scene.clamped:
             F, T = self.medium_force_on_flagella()

@@ -35,6 +35,7 @@ import scipy.sparse.linalg as spla
 
 from .effects import StepContext
 from .frames import EdgeFrames
+from .medium import coefficients_report
 from .model import RobotModel, State
 from .network import helix_angle
 from .observe import efficiency
@@ -540,7 +541,8 @@ def summary(model: RobotModel, sol: SteadySolution) -> dict:
            "continuation": list(sol.continuation), "wall_seconds": sol.wall_seconds,
            # run --json's time-stepping fields, for one schema: no steps, no simulated time, no window
            "steady_change": None, "steady_rtol": None, "window": None, "time": None, "steps": 0,
-           "dt_reductions": 0, "real_time_factor": None, "kernels": kernels_mode()}
+           "dt_reductions": 0, "real_time_factor": None, "kernels": kernels_mode(),
+           "rft_coefficients": coefficients_report(sc)}
     if sc.clamped:
         N = model.net.n_nodes
         x = sol.q[: 3 * N].reshape(N, 3)

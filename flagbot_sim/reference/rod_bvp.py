@@ -340,8 +340,14 @@ def _fail(omega, omega_at, W_at, reason, raise_on_failure, params, res) -> RodSo
 def from_scene(scene, omega: float | None = None, *, inertia: bool | None = None, **kwargs) -> RodSolution:
     """The reference for a (clamped-flagellum) scene: its L, R_d, EI, eta_t, eta_p and omega (default the
     scene's motor.omega_rpm). ``inertia``: include the centrifugal load rho A omega^2 (default: when the scene
-    lists the ``inertia`` effect, as the DER then has it). Other keyword arguments go to solve_clamped_rod."""
+    lists the ``inertia`` effect, as the DER then has it). Other keyword arguments go to solve_clamped_rod.
+
+    The coefficients are the scene medium's (``medium.model``: the paper's granular RFT, or Gray-Hancock's for a
+    straight rod in a viscous fluid). The rod is naturally straight: a helical scene is refused (ValueError)."""
     fl = scene.flagellum
+    if fl.helix_pitch != 0.0:
+        raise ValueError(f"flagellum.helix_pitch = {fl.helix_pitch:g} m: the rod BVP is of a naturally straight "
+                         "flagellum (helix_pitch = 0)")
     if inertia is None:
         inertia = "inertia" in scene.effects
     rho_A = fl.density * math.pi * fl.radius ** 2 if inertia else 0.0
