@@ -619,6 +619,17 @@ def _check_consistency(sc: Scene) -> None:
         # (a fast clamp needs no refusal: every step is split so that it turns at most time.max_turn)
 
 
+def inert_keys(sc: Scene) -> dict[str, str]:
+    """Keys that do not enter this scene's model, each with the reason: a fit, a design search or a sweep that
+    varies one is refused (it would vary nothing)."""
+    out = {}
+    if sc.medium.model == "viscous":
+        for key in ("head.C1", "head.C2"):
+            out[key] = (f"{key} does not enter medium.model = 'viscous' (the head is the exact Stokes sphere; C1, C2 "
+                        "are the granular model's fitted factors)")
+    return out
+
+
 #: a helical flagellum needs at least this many edges per turn (each edge turns the tangent by at most 2 pi / 8
 #: about the axis: the discrete helix is then within 1 - sin(x)/x < 2.6% of the pitch angle's tangent)
 HELIX_EDGES_PER_TURN = 8

@@ -51,8 +51,12 @@ class BeamParams:
     def from_scene(cls, scene: Scene) -> "BeamParams":
         # The balance equations divide by the head coefficients: a scene without head drag or torque (C1 or
         # C2 = 0, allowed for the DER) has no beam-theory steady state, so say which key to change.
+        if scene.flagellum.helix_pitch != 0.0:
+            raise SceneError(f"flagellum.helix_pitch = {scene.flagellum.helix_pitch:g} m: the beam estimator models "
+                             "naturally straight flagella (the paper's beam theory); use the DER (flagbot run, "
+                             "flagbot steady) for helical ones")
         for key, value in (("head.C1", scene.head.C1), ("head.C2", scene.head.C2)):
-            if value <= 0:
+            if value <= 0 and scene.medium.model == "granular_rft":   # (the viscous head is the exact sphere)
                 raise SceneError(f"{key} = {value!r}: the beam estimator needs a head drag and torque "
                                  f"(Eqs. vHead, OHead divide by them); set {key} > 0")
         return cls(n=scene.robot.n_flagella, L=scene.flagellum.length, EI=scene.EI, eta_t=scene.eta_t,

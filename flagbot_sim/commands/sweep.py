@@ -80,6 +80,16 @@ def _frameworks(text: str) -> tuple[str, ...]:
     return tuple(fw for fw in FRAMEWORKS if fw in items)     # canonical order: the manifest compares lists
 
 
+def _check_beam_shape(base, grid: dict, frameworks: tuple[str, ...]) -> None:
+    """Refuse beam frameworks on helical flagella: the beam balance is of naturally straight ones."""
+    beams = [f for f in frameworks if f != "der"]
+    pitches = grid.get("flagellum.helix_pitch", [base.flagellum.helix_pitch])
+    helical = [p for p in pitches if p != 0.0]
+    if beams and helical:
+        raise SweepError(f"flagellum.helix_pitch = {helical[0]:g} m: the beam balance ({', '.join(beams)}) models "
+                         "naturally straight flagella only; use --frameworks der for helical ones")
+
+
 def _progress_text(res: dict) -> str:
     """The last finished point for the progress line ('--' where a value is missing, never 'nan')."""
     def num(x, spec, scale=1.0):
@@ -109,6 +119,7 @@ def cmd_sweep(args) -> int:
                               method=args.method)
     settings.check()
     frameworks = _frameworks(args.frameworks)
+    _check_beam_shape(base, grid, frameworks)
     identity = manifest_identity(base.flat(), grid, settings.to_dict(), list(frameworks))
     store = SweepStore(args.out, grid, points, identity,
                        extra={"scene_name": base.scene.name, "scene_source": portable_source(base.source), "set": args.overrides,

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..scene import SECTIONS, Scene, SceneError, _split_key
+from ..scene import SECTIONS, Scene, SceneError, _split_key, inert_keys
 from .data import ALIASES, Dataset, engine_rows
 from .evaluate import evaluate
 
@@ -97,9 +97,12 @@ def parse_parameters(text: str, base: Scene, bounds: dict[str, tuple[float, floa
     if unknown:
         raise FitError(f"--bounds {unknown[0]}: not a fitted parameter (--fit {','.join(keys)})")
     out = []
+    inert = inert_keys(base)
     for key in keys:
         section, name = _split_key(key)
         f = next(f for f in dataclasses.fields(SECTIONS[section]) if f.name == name)
+        if key in inert:
+            raise FitError(f"--fit {inert[key]}")
         if isinstance(f.default, bool) or not isinstance(f.default, float):
             kind = "an integer" if isinstance(f.default, int) else "not a number"
             raise FitError(f"--fit {key}: {kind} ({type(f.default).__name__}); only real-valued scene keys can be "

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene import SECTIONS, Scene, SceneError, _split_key, scene_from_dict
+from ..scene import SECTIONS, Scene, SceneError, _split_key, inert_keys, scene_from_dict
 from .evaluate import OUTPUTS, equilibrium_outputs, evaluate
 from .fit import FitError
 
@@ -95,6 +95,8 @@ def parse_vary(specs: list[str], base: Scene) -> list[Variable]:
         if key in seen:
             raise FitError(f"--vary {key} is given twice")
         seen.add(key)
+        if key in inert_keys(base):
+            raise FitError(f"--vary {inert_keys(base)[key]}")
         f = next(f for f in dataclasses.fields(SECTIONS[section]) if f.name == name)
         if isinstance(f.default, bool) or not isinstance(f.default, (int, float)):
             raise FitError(f"--vary {key}: not a number; only numeric scene keys can be design variables")

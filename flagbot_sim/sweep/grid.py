@@ -12,7 +12,7 @@ import tomllib
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 
-from ..scene import Scene, SceneError, _split_key
+from ..scene import Scene, SceneError, _split_key, inert_keys
 
 #: shorthand grid keys; the CSV and the manifest always use the full scene key
 ALIASES = {"n": "robot.n_flagella", "L": "flagellum.length", "rpm": "motor.omega_rpm"}
@@ -123,8 +123,11 @@ def validate(base: Scene, grid: dict[str, list], fixed_overrides: dict) -> tuple
     clash = sorted(set(grid) & set(fixed_overrides))
     if clash:
         raise SweepError(f"{clash[0]} is both a --set and a --grid key; keep one")
+    inert = inert_keys(base)
     normalised: dict[str, list] = {}
     for key, values in grid.items():
+        if key in inert:
+            raise SweepError(f"--grid {inert[key]}")
         section, name = key.split(".", 1)
         out = []
         for v in values:

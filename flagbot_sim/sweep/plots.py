@@ -10,7 +10,9 @@ pyplot state), so tests can inspect its lines and labels before anything is save
 * ``figure_head_spin``: omega_h_bar vs omega_T_bar and omega_h / omega_T (panels b/d);
 * ``figure_length``: v vs omega_T for every flagellum length and n, DER ("D") and beam ("B") with the paper's
   labels such as D130n2 (Fig. SpeedVSFlagellaLengthandNumber), explained in the legend's title;
-* ``figure_deflection``: w(L)/L vs omega_T_bar for LB, NLB w/o head, NLB (Fig. comparison).
+* ``figure_deflection``: w(L)/L vs omega_T_bar for LB, NLB w/o head, NLB (Fig. comparison);
+* ``figure_groups``: DER v vs omega_T for every group of the grid's other keys on one figure (e.g. helical vs
+  straight flagella, granular vs viscous medium).
 """
 from __future__ import annotations
 
@@ -357,6 +359,33 @@ def summarise(rows: list[dict], L: float | None = None) -> dict:
     return out
 
 
+def figure_groups(rows: list[dict], extra_keys: list[str], title: str = ""):
+    """v (mm/s) vs omega_T (rpm) of the DER for every group of the grid's other keys (those not drawn on an axis,
+    e.g. flagellum.helix_pitch and medium.model), one colour per group, n by marker and dash: the groups compared
+    on one figure (the per-group figures show each alone)."""
+    from matplotlib import colormaps
+    fig, (ax,) = _new_figure(width=7.4)
+    ns = n_values(rows)
+    groups = sorted({tuple(r[k] for k in extra_keys) for r in rows}, key=repr)
+    Ls = sorted({r["L"] for r in rows})
+    cmap = colormaps["tab10"]
+    markers, dashes = "os^Dv<>", ["-", "--", ":", "-."]
+    for i, g in enumerate(groups):
+        grows = [r for r in rows if tuple(r[k] for k in extra_keys) == g]
+        for L in Ls:
+            for j, n in enumerate(ns):
+                x, y = curve(grows, "der", n, L, x="omega_T_rpm", y="v")
+                if len(x):
+                    tag = ", ".join(f"{k.split('.')[-1]} {v}" for k, v in zip(extra_keys, g))
+                    if len(Ls) > 1:
+                        tag += f", L {1e3 * L:g} mm"
+                    ax.plot(x, 1e3 * y, ls=dashes[j % len(dashes)], marker=markers[j % len(markers)], ms=3.0,
+                            color=cmap(i % 10), label=f"{tag}, n={n}")
+    _finish(ax, r"$\omega_T$ (rpm)", r"$v$ (mm/s, DER)", title or "speed vs motor speed by group",
+            legend=dict(ncol=1))
+    return fig
+
+
 def _suffix(extra: tuple, L: float | None, several_L: bool) -> str:
     parts = [f"{k.split('.')[-1]}{v}" for k, v in extra]
     if several_L and L is not None:
@@ -398,6 +427,11 @@ def make_all(directory: str | Path, dpi: int = 120) -> dict:
             path = directory / name
             fig.savefig(path, dpi=dpi)
             figures.append(str(path))
+    if extra_keys and len(groups) > 1 and any(r["framework"] == "der" for r in rows):
+        path = directory / "speed_by_group.png"
+        figure_groups(rows, extra_keys, title=f"{scene_name}: DER speed by " + ", ".join(extra_keys)).savefig(
+            path, dpi=dpi)
+        figures.append(str(path))
     (directory / "summary.json").write_text(json_output(summary, indent=1))     # strict JSON: NaN written as null
     return {"figures": figures, "summary": summary}
 
