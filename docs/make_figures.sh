@@ -2,7 +2,7 @@
 # Regenerates every committed figure under docs/figures/ (and the data they are drawn from) with the project's own
 # commands, the same ones docs/reproduction.md, docs/usage.md and docs/accuracy.md quote.
 #
-#   docs/make_figures.sh                 # fig1 sweeps accuracy: everything (the accuracy study is most of it)
+#   docs/make_figures.sh                 # fig1 sweeps helical accuracy: everything (the accuracy study is most of it)
 #   docs/make_figures.sh fig1 sweeps     # only these parts
 #   docs/make_figures.sh redraw          # redraw every figure from the committed CSVs, computing nothing
 #   docs/make_figures.sh speed           # also: docs/speed.txt (flagbot bench speed; not a figure)
@@ -10,6 +10,7 @@
 # Parts, with their time on the 2-core VM at load ~1.4 and a warm kernel cache (docs/speed.md):
 #   fig1      docs/figures/fig1_paper.png, fig1_design1.png, fig1_design2.png           (flagbot render; ~15 s)
 #   sweeps    docs/figures/design1, design2, design1_length, design2_length: CSV + figures (flagbot sweep; ~30 s)
+#   helical   docs/figures/helical_granular, helical_viscous: helical vs straight flagella (flagbot sweep; ~45 s)
 #   accuracy  docs/accuracy.csv, docs/figures/accuracy_vs_time.png, accuracy_calibration.png
 #             (flagbot bench accuracy, the whole study: ~12 min on an earlier 2-core VM, docs/accuracy.md; more
 #             under load. ACCURACY_ARGS=--quick: 63 s on the 2-core VM at load ~1.7)
@@ -61,6 +62,17 @@ sweeps() {
     sweep design2_length design2 --grid L=0.07,0.089,0.11 --grid n=2,3 --grid rpm=20:250:10
 }
 
+helical() {
+    # docs/helical_viscous.md: helical vs straight flagella of design 1 in the paper's granular medium and in a
+    # glycerin-like fluid (DER only: the beam balance is of straight flagella). The beam-deflection and length
+    # figures of a DER-only, one-length sweep are empty or repeat the speed figure: removed
+    sweep helical_granular design1 --grid n=2,3 --grid rpm=20:250:10 --grid flagellum.helix_pitch=0,-0.05,-0.12 \
+        --frameworks der
+    sweep helical_viscous design1 --set medium.model=viscous --set medium.mu=1.2 --grid n=2,3 \
+        --grid rpm=20:250:10 --grid flagellum.helix_pitch=0,-0.05,-0.12 --frameworks der
+    rm -f "$FIG"/helical_*/deflection_*.png "$FIG"/helical_*/speed_vs_length_*.png
+}
+
 accuracy() {
     # the study's own tables (accuracy.md, accuracy.json) stay in $ACCURACY_OUT: docs/accuracy.md quotes them
     local out=${ACCURACY_OUT:-$(mktemp -d /tmp/flagbot_accuracy.XXXXXX)}
@@ -72,9 +84,10 @@ accuracy() {
 
 redraw() {
     local dir
-    for dir in design1 design2 design1_length design2_length; do
+    for dir in design1 design2 design1_length design2_length helical_granular helical_viscous; do
         step "redraw $dir" "${FLAGBOT[@]}" sweep-plot "$FIG/$dir"
     done
+    rm -f "$FIG"/helical_*/deflection_*.png "$FIG"/helical_*/speed_vs_length_*.png
     step "redraw accuracy" "${FLAGBOT[@]}" bench accuracy --plot-from docs/accuracy.csv --out "$FIG"
 }
 
@@ -90,11 +103,11 @@ speed() {
 }
 
 parts=("$@")
-[ ${#parts[@]} -gt 0 ] || parts=(fig1 sweeps accuracy)
+[ ${#parts[@]} -gt 0 ] || parts=(fig1 sweeps helical accuracy)
 for part in "${parts[@]}"; do
     case "$part" in
-        fig1|sweeps|accuracy|redraw|speed) "$part" ;;
-        *) echo "error: unknown part '$part' (fig1, sweeps, accuracy, redraw, speed)" >&2; exit 2 ;;
+        fig1|sweeps|helical|accuracy|redraw|speed) "$part" ;;
+        *) echo "error: unknown part '$part' (fig1, sweeps, helical, accuracy, redraw, speed)" >&2; exit 2 ;;
     esac
 done
 echo "done: git status docs/ shows what changed" >&2
