@@ -304,38 +304,22 @@ class Scene:
         """EI / L^2 (N): the flagellum's bending force, the unit of numerics.force_tol."""
         return self.EI / self.flagellum.length ** 2
 
-    @property
-    def rft_coefficients(self) -> tuple[float, float]:
-        """(eta_t, eta_p) of the medium's RFT (N s/m^2): :func:`flagbot_sim.physics.medium.rft_coefficients`."""
-        fl = self.flagellum
-        return _medium.rft_coefficients(self.medium.model, self.medium.mu, fl.length, fl.radius, self.R_d,
-                                        fl.helix_pitch)
-
-    @property
-    def rft_formula(self) -> str:
-        """Which formula gives the RFT coefficients ('paper_granular_rft', 'gray_hancock_1955', 'lighthill_1976')."""
-        fl = self.flagellum
-        return _medium.rft_length_scale(self.medium.model, fl.length, self.R_d, fl.helix_pitch)[1]
-
+    # the medium's coefficients: physics/medium.py (one home for the formulas)
     @property
     def eta_t(self) -> float:
-        return self.rft_coefficients[0]
+        return _medium.rft_coefficients(self)[0]
 
     @property
     def eta_p(self) -> float:
-        return self.rft_coefficients[1]
+        return _medium.rft_coefficients(self)[1]
 
     @property
     def head_drag_coefficient(self) -> float:
-        """N s/m: C1 6 pi mu R_h (granular_rft), 6 pi mu R_h (viscous)."""
-        h = self.head
-        return _medium.head_coefficients(self.medium.model, self.medium.mu, h.radius, h.C1, h.C2)[0]
+        return _medium.head_drag_coefficient(self)
 
     @property
     def head_torque_coefficient(self) -> float:
-        """N m s: C2 8 pi mu R_h^3 (granular_rft), 8 pi mu R_h^3 (viscous)."""
-        h = self.head
-        return _medium.head_coefficients(self.medium.model, self.medium.mu, h.radius, h.C1, h.C2)[1]
+        return _medium.head_torque_coefficient(self)
 
     @property
     def relaxation_time(self) -> float:
@@ -588,7 +572,7 @@ def _check_consistency(sc: Scene) -> None:
     if 2.0 * fl.length / fl.radius <= math.exp(0.5):
         raise SceneError("flagellum.length / flagellum.radius is too small for resistive-force theory "
                          f"(needs log(2L/r0) > 1/2, got 2L/r0 = {2 * fl.length / fl.radius:.3g})")
-    slender = _medium.slenderness_problem(sc.medium.model, fl.length, fl.radius, sc.R_d, fl.helix_pitch)
+    slender = _medium.slenderness_problem(sc)
     if slender:
         raise SceneError(f"flagellum.radius = {fl.radius:g} m is too thick for Lighthill's resistive-force theory of "
                          f"this helix (flagellum.helix_pitch = {fl.helix_pitch:g} m): it {slender}")
@@ -644,7 +628,7 @@ def _check_helix(sc: Scene) -> None:
     if abs(P) <= 2.0 * fl.radius:
         raise SceneError(f"flagellum.helix_pitch = {P:g} m: its turns would overlap; |P| must exceed the "
                          f"flagellum's diameter 2 r0 = {2 * fl.radius:g} m")
-    turn = math.hypot(P, 2.0 * math.pi * sc.R_d)         # arc length of one turn
+    turn = _medium.helix_turn_length(sc.R_d, P)
     n_seg = max(1, round(fl.length / fl.edge_length))
     if fl.length / n_seg > turn / HELIX_EDGES_PER_TURN:
         raise SceneError(f"flagellum.helix_pitch = {P:g} m: one turn is {turn:.3g} m of flagellum, which its "

@@ -6,6 +6,8 @@ import math
 
 import pytest
 
+from flagbot_sim.physics import medium
+
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.physics.steady import SteadySolver, summary
 from flagbot_sim.reference.rod_bvp import from_scene, solve_clamped_rod
@@ -27,7 +29,7 @@ def test_coefficients_are_the_published_formulas():
     # a straight rod in a fluid: Gray & Hancock (1955) with the length L as the wavelength
     sc = load_scene("design1", VISCOUS)
     mu = 1.2
-    assert sc.rft_formula == "gray_hancock_1955"
+    assert medium.rft_formula(sc) == "gray_hancock_1955"
     assert sc.eta_t == pytest.approx(2 * math.pi * mu / (math.log(2 * L / r0) - 0.5), rel=1e-14)
     assert sc.eta_p == pytest.approx(4 * math.pi * mu / (math.log(2 * L / r0) + 0.5), rel=1e-14)
     # the exact Stokes sphere: C1 and C2 (the granular fit) do not enter
@@ -40,7 +42,7 @@ def test_coefficients_are_the_published_formulas():
     sc = load_scene("design1", VISCOUS + [f"flagellum.helix_pitch={P}"])
     Lam = math.sqrt(P ** 2 + (2 * math.pi * sc.R_d) ** 2)
     q = 0.09 * Lam
-    assert sc.rft_formula == "lighthill_1976"
+    assert medium.rft_formula(sc) == "lighthill_1976"
     assert sc.eta_t == pytest.approx(2 * math.pi * mu / math.log(2 * q / r0), rel=1e-14)
     assert sc.eta_p == pytest.approx(4 * math.pi * mu / (math.log(2 * q / r0) + 0.5), rel=1e-14)
     # and the model's effects use exactly these

@@ -13,7 +13,8 @@ Two media (scene key ``medium.model``; sources and discussion in docs/physics.md
   Lambda, Lambda the flagellum's arc length per turn. The head: exact Stokes drag 6 pi mu R_h v and torque
   8 pi mu R_h^3 omega on a sphere (C1, C2 are the granular model's fitted factors and do not enter).
 
-Plain Python (no numba): the scene validator imports it.
+Every function takes a scene (duck-typed: its ``medium``, ``flagellum``, ``head`` and ``plate`` sections). Plain
+Python (no numba): the scene validator imports it.
 """
 from __future__ import annotations
 
@@ -34,53 +35,66 @@ def helix_turn_length(radius: float, pitch: float) -> float:
     return math.hypot(pitch, 2.0 * math.pi * radius)
 
 
-def rft_length_scale(model: str, length: float, helix_radius: float, pitch: float) -> tuple[float, str]:
+def _length_scale(scene) -> tuple[float, str]:
     """(l, formula): the length whose ratio to the flagellum radius sets the coefficients' logarithm, ln(2 l/r0),
-    and the name of the formula they come from."""
-    if model == "viscous" and pitch != 0.0:
-        return LIGHTHILL_Q * helix_turn_length(helix_radius, pitch), "lighthill_1976"
-    if model == "viscous":
-        return length, "gray_hancock_1955"
-    return length, "paper_granular_rft"
+    and the name of the formula they come from. The helix's radius is the attachment radius plate.diameter / 2."""
+    fl = scene.flagellum
+    if scene.medium.model == "viscous" and fl.helix_pitch != 0.0:
+        return LIGHTHILL_Q * helix_turn_length(0.5 * scene.plate.diameter, fl.helix_pitch), "lighthill_1976"
+    if scene.medium.model == "viscous":
+        return fl.length, "gray_hancock_1955"
+    return fl.length, "paper_granular_rft"
 
 
-def rft_coefficients(model: str, mu: float, length: float, radius: float, helix_radius: float = 0.0,
-                     pitch: float = 0.0) -> tuple[float, float]:
-    """(eta_t, eta_n) in N s/m^2: the drag per unit length and unit velocity along and across the flagellum's
-    tangent, for ``model`` (MODELS), coefficient or viscosity ``mu`` (Pa s), flagellum ``length`` and ``radius``
-    (m), and its helix (radius and pitch, m; pitch 0 = straight)."""
-    l, formula = rft_length_scale(model, length, helix_radius, pitch)
-    log = math.log(2.0 * l / radius)
+def rft_formula(scene) -> str:
+    """Which formula gives the scene's RFT coefficients: 'paper_granular_rft', 'gray_hancock_1955' or
+    'lighthill_1976'."""
+    return _length_scale(scene)[1]
+
+
+def rft_coefficients(scene) -> tuple[float, float]:
+    """(eta_t, eta_p) in N s/m^2: the drag per unit length and unit velocity along and across the flagellum's
+    tangent, for the scene's medium (``medium.model``, ``medium.mu``), flagellum (length, radius) and helix."""
+    l, formula = _length_scale(scene)
+    mu = scene.medium.mu
+    log = math.log(2.0 * l / scene.flagellum.radius)
     if formula == "lighthill_1976":
         return 2.0 * math.pi * mu / log, 4.0 * math.pi * mu / (log + 0.5)
     return 2.0 * math.pi * mu / (log - 0.5), 4.0 * math.pi * mu / (log + 0.5)
 
 
-def head_coefficients(model: str, mu: float, head_radius: float, C1: float, C2: float) -> tuple[float, float]:
-    """(drag N s/m, torque N m s) on the spherical head: C1 6 pi mu R_h and C2 8 pi mu R_h^3 for the granular
-    model, the exact Stokes sphere (C1 = C2 = 1) for the viscous one."""
-    if model == "viscous":
-        C1 = C2 = 1.0
-    return C1 * 6.0 * math.pi * mu * head_radius, C2 * 8.0 * math.pi * mu * head_radius ** 3
+def _head_factors(scene) -> tuple[float, float]:
+    """(C1, C2): the scene's fitted factors in the granular medium, the exact Stokes sphere's 1, 1 in the fluid."""
+    return (1.0, 1.0) if scene.medium.model == "viscous" else (scene.head.C1, scene.head.C2)
 
 
-def slenderness_problem(model: str, length: float, radius: float, helix_radius: float, pitch: float
-                        ) -> str | None:
+def head_drag_coefficient(scene) -> float:
+    """N s/m: the head's drag per speed, C1 6 pi mu R_h (granular_rft) or 6 pi mu R_h (viscous)."""
+    return _head_factors(scene)[0] * 6.0 * math.pi * scene.medium.mu * scene.head.radius
+
+
+def head_torque_coefficient(scene) -> float:
+    """N m s: the head's torque per spin rate, C2 8 pi mu R_h^3 (granular_rft) or 8 pi mu R_h^3 (viscous)."""
+    return _head_factors(scene)[1] * 8.0 * math.pi * scene.medium.mu * scene.head.radius ** 3
+
+
+def slenderness_problem(scene) -> str | None:
     """Why resistive-force theory cannot be applied to this flagellum (its coefficients would be negative or
     infinite), or None: it needs ln(2 l / r0) > 1/2 with l the formula's length scale."""
-    l, formula = rft_length_scale(model, length, helix_radius, pitch)
-    if 2.0 * l / radius > math.exp(0.5):
+    l, formula = _length_scale(scene)
+    r0 = scene.flagellum.radius
+    if 2.0 * l / r0 > math.exp(0.5):
         return None
     what = (f"{LIGHTHILL_Q} x the arc length of one turn, {l:.3g} m (Lighthill's q)" if formula == "lighthill_1976"
             else f"the flagellum length {l:.3g} m")
-    return f"needs log(2 l / r0) > 1/2 with l = {what}; got 2 l / r0 = {2 * l / radius:.3g}"
+    return f"needs log(2 l / r0) > 1/2 with l = {what}; got 2 l / r0 = {2 * l / r0:.3g}"
 
 
 def coefficients_report(scene) -> dict:
     """The ``rft_coefficients`` entry of every run and steady JSON: the medium, the formula and its eta_t, eta_n
     (N s/m^2) for this scene."""
-    eta_t, eta_n = scene.rft_coefficients
-    return {"model": scene.medium.model, "formula": scene.rft_formula, "eta_t": eta_t, "eta_n": eta_n}
+    eta_t, eta_n = rft_coefficients(scene)
+    return {"model": scene.medium.model, "formula": rft_formula(scene), "eta_t": eta_t, "eta_n": eta_n}
 
 
 def describe(report: dict) -> str:

@@ -35,7 +35,7 @@ import scipy.sparse.linalg as spla
 
 from .effects import StepContext
 from .frames import EdgeFrames
-from .medium import coefficients_report
+from .medium import coefficients_report, rft_coefficients
 from .model import RobotModel, State
 from .network import helix_angle
 from .observe import efficiency
@@ -369,7 +369,8 @@ class SteadySolver:
             return q, omega_T, 0.0
         c_h = sc.head_torque_coefficient if "head_torque" in sc.effects else 0.0
         th = helix_angle(sc.R_d, sc.flagellum.helix_pitch)
-        drag = sc.eta_t * math.sin(th) ** 2 + sc.eta_p * math.cos(th) ** 2
+        eta_t, eta_p = rft_coefficients(sc)
+        drag = eta_t * math.sin(th) ** 2 + eta_p * math.cos(th) ** 2
         c_t = sc.robot.n_flagella * drag * sc.flagellum.length * sc.R_d ** 2 if "rft" in sc.effects else 0.0
         omega_t = omega_T * c_h / (c_h + c_t) if c_h + c_t > 0 else 0.5 * omega_T
         return q, omega_t, 0.0
