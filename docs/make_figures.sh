@@ -71,6 +71,9 @@ helical() {
     sweep helical_viscous design1 --set medium.model=viscous --set medium.mu=1.2 --grid n=2,3 \
         --grid rpm=20:250:10 --grid flagellum.helix_pitch=0,-0.05,-0.12 --frameworks der
     rm -f "$FIG"/helical_*/deflection_*.png "$FIG"/helical_*/speed_vs_length_*.png
+    step "Fig. 1 with helical flagella" "${FLAGBOT[@]}" render design1 --set flagellum.helix_pitch=-0.05 \
+        --out "$TMP/fig1_helical.png"
+    mv "$TMP/fig1_helical.png" "$FIG/"
 }
 
 accuracy() {
