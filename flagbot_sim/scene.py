@@ -25,7 +25,7 @@ from typing import Any
 from .physics import medium as _medium
 from .physics.effects import EFFECT_TYPES
 from .physics.medium import MODELS as MEDIUM_MODELS
-from .physics.network import NEWTON_ROUNDOFFS, build_network
+from .physics.network import NEWTON_ROUNDOFFS, build_network, flagellum_edge_count
 
 RPM = 2.0 * math.pi / 60.0  # rad/s per rpm
 
@@ -614,8 +614,8 @@ def inert_keys(sc: Scene) -> dict[str, str]:
     return out
 
 
-#: a helical flagellum needs at least this many edges per turn (each edge turns the tangent by at most 2 pi / 8
-#: about the axis: the discrete helix is then within 1 - sin(x)/x < 2.6% of the pitch angle's tangent)
+#: a helical flagellum needs at least this many edges per turn: an edge then spans an azimuth d <= 2 pi / 8, and
+#: its chord's tan(pitch angle) is within 1 - sin(d/2)/(d/2) < 2.6% of the helix's
 HELIX_EDGES_PER_TURN = 8
 
 
@@ -629,7 +629,7 @@ def _check_helix(sc: Scene) -> None:
         raise SceneError(f"flagellum.helix_pitch = {P:g} m: its turns would overlap; |P| must exceed the "
                          f"flagellum's diameter 2 r0 = {2 * fl.radius:g} m")
     turn = _medium.helix_turn_length(sc.R_d, P)
-    n_seg = max(1, round(fl.length / fl.edge_length))
+    n_seg = flagellum_edge_count(fl.length, fl.edge_length)
     if fl.length / n_seg > turn / HELIX_EDGES_PER_TURN:
         raise SceneError(f"flagellum.helix_pitch = {P:g} m: one turn is {turn:.3g} m of flagellum, which its "
                          f"{fl.length / n_seg:.3g} m edges cannot resolve; use flagellum.edge_length <= "

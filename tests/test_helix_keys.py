@@ -78,3 +78,19 @@ def test_sweep_fit_and_optimize_take_the_keys(tmp_path):
     best = json.load(open(tmp_path / "o" / "optimize.json"))["optimum"]
     # the fastest pitch is inside the range (RFT's thrust per length peaks near a 45-degree helix), head first
     assert -0.2 < best["design"]["flagellum.helix_pitch"] < -0.02 and best["v"] > 0 and best["feasible"]
+
+
+def test_the_group_figure_draws_one_curve_per_group_and_n():
+    from flagbot_sim.sweep.plots import figure_groups
+    rows = [{"framework": "der", "n": n, "L": 0.1, "omega_T_rpm": w, "v": 1e-3 * w * (1 + k) / n, "error": "",
+             "flagellum.helix_pitch": p, "medium.model": m}
+            for k, (p, m) in enumerate([(0.0, "granular_rft"), (-0.05, "granular_rft"), (-0.05, "viscous")])
+            for n in (2, 3) for w in (50.0, 100.0)]
+    fig = figure_groups(rows, ["flagellum.helix_pitch", "medium.model"])
+    lines = fig.axes[0].get_lines()
+    assert len(lines) == 6
+    labels = {ln.get_label() for ln in lines}
+    assert "helix_pitch -0.05, model viscous, n=3" in labels
+    # each curve is its group's data, in mm/s
+    line = next(ln for ln in lines if ln.get_label() == "helix_pitch -0.05, model viscous, n=3")
+    assert list(line.get_ydata()) == pytest.approx([1e3 * 1e-3 * w * 3 / 3 for w in (50.0, 100.0)])

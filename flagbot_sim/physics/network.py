@@ -217,10 +217,10 @@ def build_network(scene) -> RodNetwork:
     pitch = fl.helix_pitch
     for i in range(n):
         phi = 2.0 * math.pi * i / n
-        radial = np.array([0.0, math.cos(phi), math.sin(phi)])
         centre, t0 = flagellum_centreline(np.arange(n_seg + 1) * ds, phi, R_d, pitch)
-        # the socket points along the flagellum's base tangent, so the base hinge stays a (nearly) straight one
-        r = b.node(np.array([x_plate, 0.0, 0.0]) + R_d * radial if pitch == 0.0 else centre[0] - s_len * t0)
+        # the socket points along the flagellum's base tangent (+x when straight: the rim node r_i is then on the
+        # plate, x = x_plate), so the base hinge stays a (nearly) straight one
+        r = b.node(centre[0] - s_len * t0)
         p = b.node(centre[0])
         e_arm = b.edge(x2, r, rEA, False, rod_m, rod_j)
         e_sock = b.edge(r, p, rEA, False, rod_m, rod_j)
