@@ -85,7 +85,7 @@ def test_cli_and_sim_node_refuse_alike():
     assert p.returncode == 2 and p.stdout == ""
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: numerics.force_tol = 1e-300 cannot be met")
-    from flagbot_sim.ros.sim_node import build_simulation
+    from flagbot_sim.device import build_simulation
     with pytest.raises(SceneError) as err:
         build_simulation("design1", 0, ["numerics.force_tol=1e-300"])
     assert f"error: {err.value}" == lines[0]

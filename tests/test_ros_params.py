@@ -1,4 +1,4 @@
-"""The node-side guards of flagbot_sim/ros/params.py on their own (no node): the time limit on work done inside a
+"""The node-side guards of flagbot_sim/values.py on their own (no node): the time limit on work done inside a
 set-parameters callback, and the scene reader (scene.py's, shared with the CLI) that never blocks."""
 import os
 import threading
@@ -6,8 +6,8 @@ import time
 
 import pytest
 
-from flagbot_sim.ros.params import TimeLimited, node_scene
 from flagbot_sim.scene import MAX_FILE_BYTES, SceneError, load_scene, read_scene_text
+from flagbot_sim.values import TimeLimited, node_scene
 
 
 def test_time_limited_work_is_refused_when_it_overruns_and_blocks_nothing_after():

@@ -11,8 +11,8 @@ import os
 
 import pytest
 
-from flagbot_sim.ros.params import node_scene, record_refusal, text_refusal
 from flagbot_sim.scene import SceneError, control_character, load_scene
+from flagbot_sim.values import node_scene, record_refusal, text_refusal
 
 from cli_helpers import flagbot
 

@@ -61,6 +61,11 @@ class Simulation:
         d = self.model.driver
         return d.omega if d is not None else 0.0
 
+    @property
+    def has_drive(self) -> bool:
+        """The scene has a motor or clamp effect to command: without one omega_T is 0 and set_omega refuses."""
+        return self.model.driver is not None
+
     def set_omega(self, omega_T: float) -> None:
         """Set the motor (or clamp) speed in rad/s; takes effect at the next step."""
         if not math.isfinite(omega_T):
@@ -168,6 +173,20 @@ class Simulation:
                 f"{min(h for _, h in self._recent):.3g} s of time.dt = {self.dt:g} s: Newton does not converge "
                 f"within numerics.max_iterations = {num.max_iterations} at the step asked for (tolerance "
                 f"{self.model.force_tol:.3g} N), so the run is slow")
+
+    def diagnostics(self) -> dict:
+        """The numbers a live device reports about its run, raw and in SI (sim_node formats them for
+        /diagnostics): the command, the last step's Newton iterations, residual and smallest sub-step, the force
+        tolerance in force, dt, the dt reductions (in total and of the last CUT_WINDOW steps), the steps taken, the
+        scene and its flagella, the steady-state rule's verdict and change, the integrator and time.rtol."""
+        st = self.last_stats
+        return {"omega_T": self.omega_T, "newton_iterations_last_step": st.newton_iterations,
+                "residual": st.residual, "newton_tolerance": self.model.force_tol, "dt": self.dt,
+                "dt_min_last_step": st.dt_min, "dt_reductions_total": self.reductions,
+                "dt_reductions_recent": self.recent_reductions, "steps": self.steps, "scene": self.scene.scene.name,
+                "n_flagella": self.scene.robot.n_flagella, "steady": self.steady,
+                "steady_change": self.steady_detector.change, "integrator": self.stepper.integrator.name,
+                "error_control_rtol": self.stepper.rtol}
 
     # ---------------------------------------------------------------- observations
     def snapshot(self) -> Snapshot:

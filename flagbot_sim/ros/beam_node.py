@@ -22,8 +22,9 @@ from ..beam import REGIMES, BeamParams, solve_balance
 from ..scene import SceneError
 from . import convert
 from .. import topics as names
-from .params import ParamSpec, command_refusal, declare, help_text, node_scene, refusal, scene_request
-from .runtime import one_line, run_node, wants_help
+from ..values import ParamSpec, command_refusal, node_scene, one_line, refusal
+from .params import declare, help_text, scene_request
+from .runtime import run_node, wants_help
 
 PARAMS = [
     ParamSpec("scene", "design1", "built-in scene name or path to a .toml scene file"),

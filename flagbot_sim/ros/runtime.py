@@ -165,6 +165,7 @@ class RosArgsError(ValueError):
 
 def _rcl_message(exc: Exception) -> str:
     # rcl appends the C source location of every layer (", at /project/src/rcl/arguments.c:352"): not for users
+    from ..values import one_line         # (beside the value checks; imported here only when there is an error)
     return one_line(re.sub(r",? at /\S+:\d+", "", str(exc)))
 
 
@@ -186,12 +187,6 @@ def wants_help(argv: list[str]) -> bool:
     except RosArgsError:
         return False
     return "-h" in user or "--help" in user
-
-
-def one_line(text: str, limit: int = 300) -> str:
-    """``text`` on one line, at most ``limit`` characters (an error message that echoes a huge value stays short)."""
-    text = " ".join(str(text).split())
-    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def run_node(make_node: Callable[[], object], argv: list[str] | None = None, *, process_exit: bool = False) -> int:
@@ -234,6 +229,7 @@ def _run_node(make_node: Callable[[], object], argv: list[str]) -> int:
                 # a node that shut the context down from a callback (cmd_profile --exit-at-end) ends the loop
                 # normally; anything else (a bad parameter, a bad scene at startup) is one line, not a traceback
                 if rclpy.ok():
+                    from ..values import one_line
                     print(f"error: {one_line(str(exc) or type(exc).__name__)}", file=sys.stderr)
                     code = 2
             finally:
