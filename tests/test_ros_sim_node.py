@@ -299,10 +299,12 @@ def test_fresh_recording_carries_tf_that_rosbags_decodes_and_that_matches_head_p
     lis = Listener(ros)
     try:
         start(ros, lis)
-        lis.run_until(1.0)
+        # 2 s of simulated time either side of the rebuild: at 50 Hz of wall time and real-time factor 5 about 40
+        # publications; with 1 s each the count was 17-27 on a loaded machine, too close to the bound below
+        lis.run_until(2.0)
         (res,) = set_params(ros, "sim_node", n_flagella=4)      # a rebuild: a new URDF, new fixed frames
         assert res.successful, res.reason
-        lis.run_until(lis.clock + 1.0)
+        lis.run_until(lis.clock + 2.0)
     finally:
         lis.close()
         code, log = proc.stop()
