@@ -96,7 +96,8 @@ def scene_words() -> tuple[list[str], list[str]]:
     """The built-in scene names and every ``section.key=`` a ``--set`` accepts."""
     import dataclasses
 
-    from .scene import SECTIONS, builtin_scenes
+    from .scene import SECTIONS
+    from .scene_files import builtin_scenes
     keys = [f"{s}.{f.name}=" for s, cls in SECTIONS.items() for f in dataclasses.fields(cls)]
     return builtin_scenes(), keys
 

@@ -26,6 +26,7 @@ from typing import Callable, ContextManager, Protocol, Sequence
 
 from .pacer import Pacer
 from .physics import Simulation, Snapshot, StepFailed
+from .physics.network import flagellum_edge_count
 from .scene import SceneError
 from .values import (SCENE_PARAMS, ParamSpec, TimeLimited, command_refusal, frame_refusal, node_scene, one_line,
                      record_refusal, text_refusal)
@@ -78,7 +79,7 @@ def build_simulation(scene: str, n_flagella: int, scene_overrides,
     """The simulation a device runs for these parameter values; SceneError (one line) if it cannot be built.
     ``guard()`` is entered around the build (the first compile of the kernels): sim_node makes it interruptible."""
     sc = node_scene(scene, n_flagella, scene_overrides)
-    edges = sc.robot.n_flagella * max(1, round(sc.flagellum.length / sc.flagellum.edge_length))
+    edges = sc.robot.n_flagella * flagellum_edge_count(sc.flagellum.length, sc.flagellum.edge_length)
     if edges > MAX_NODE_EDGES:
         raise SceneError(f"{sc.robot.n_flagella} flagella of {edges // sc.robot.n_flagella} edges: sim_node runs "
                          f"at most {MAX_NODE_EDGES} flagellum edges (a step would take longer than many ticks)")

@@ -5,7 +5,7 @@ import math
 from dataclasses import dataclass
 
 from .cliutil import finite_float
-from .scene import RPM
+from .units import RPM
 
 
 class ProfileError(ValueError):

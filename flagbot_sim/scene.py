@@ -6,28 +6,27 @@ are SI inside the program; the only non-SI key is ``motor.omega_rpm`` (the paper
 converted once by :attr:`Scene.omega_T`.
 
 Scenes choose the physical effects they want in ``scene.effects``; the model builds only those
-(see :mod:`flagbot_sim.physics.model`).
+(see :mod:`flagbot_sim.physics.model`). This module is the schema, its reading and its validation only: what the
+values mean physically (the medium's coefficients, EI, the normalised speeds) is computed by the physics
+(:mod:`flagbot_sim.physics.medium`); the generic field checks are :mod:`flagbot_sim.fields`, finding and safely
+reading a file :mod:`flagbot_sim.scene_files`.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import reprlib
-import stat
 import tomllib
-import unicodedata
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from .fields import SceneError, check_value, control_character, names as _names, short, spec
 from .physics import medium as _medium
 from .physics.effects import EFFECT_TYPES
-from .physics.medium import MODELS as MEDIUM_MODELS
+from .physics.medium import MODELS as MEDIUM_MODELS, force_scale
 from .physics.network import NEWTON_ROUNDOFFS, build_network, flagellum_edge_count
-
-RPM = 2.0 * math.pi / 60.0  # rad/s per rpm
+from .scene_files import read_scene_text, resolve_scene_path
+from .units import RPM
 
 #: Effects a scene may list, with what each one adds to the model: the physics' one registry (an effect is one
 #: class in physics.effects, plus its constants' keys in a section here)
@@ -36,80 +35,10 @@ EFFECTS: dict[str, str] = {name: cls.description for name, cls in EFFECT_TYPES.i
 HEAD_EFFECTS = tuple(name for name, cls in EFFECT_TYPES.items() if cls.on_head)
 
 
-class SceneError(ValueError):
-    """A scene file or override is invalid. The message names the key and the allowed values."""
-
-
-#: a scene file larger than this is refused unread (the built-in ones are ~1 kB)
-MAX_FILE_BYTES = 1 << 20
 #: every length (m) lies in [MIN_LENGTH, MAX_LENGTH]: 1 um to 1 km, and the smallest part of the robot is at least
 #: MIN_LENGTH_RATIO of its overall size (below that an edge vanishes in the rounding of the node positions, and
 #: the reference frames divide by a zero length)
 MIN_LENGTH, MAX_LENGTH, MIN_LENGTH_RATIO = 1.0e-6, 1.0e3, 1.0e-5
-
-_REPR = reprlib.Repr()
-_REPR.maxlist = _REPR.maxtuple = 6
-_REPR.maxdict = 4
-_REPR.maxstring = _REPR.maxother = 60
-_REPR.maxlevel = 3
-
-
-def short(value: Any, limit: int = 120) -> str:
-    """``repr(value)`` for an error message: long lists and strings elided, deep nesting cut, at most ``limit``
-    characters (a refused 1e6-element array is not echoed back)."""
-    try:
-        text = _REPR.repr(value)
-    except Exception:                                       # noqa: BLE001 - a message must never fail
-        text = f"<{type(value).__name__}>"
-    if isinstance(value, str) and len(value) > _REPR.maxstring:
-        text += f" ({len(value)} characters)"
-    elif isinstance(value, (list, tuple, dict)) and len(value) > _REPR.maxlist:
-        text += f" ({len(value)} items)"
-    return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
-_CONTROL_NAMES = {"\n": "a newline", "\r": "a carriage return", "\t": "a tab", "\0": "a NUL",
-                  "\x1b": "an escape", "\u2028": "a line separator", "\u2029": "a paragraph separator"}
-
-
-def control_character(text: str, allowed: str = "") -> str | None:
-    """The first control character of ``text`` not in ``allowed``, named for a message ('a newline (U+000A)'), or
-    None. Control characters are Unicode's Cc (C0 controls, DEL, C1 controls) and the line and paragraph
-    separators: what breaks a value over lines (an override's newline started a second TOML key, which was then
-    dropped) or cuts it short where it becomes a C string (a NUL ends a file name)."""
-    for c in text:
-        if c not in allowed and (unicodedata.category(c) in ("Cc", "Zl", "Zp")):
-            return f"{_CONTROL_NAMES.get(c, 'a control character')} (U+{ord(c):04X})"
-    return None
-
-
-def _names(items, limit: int = 5) -> str:
-    """Some names for a message: the first ``limit``, then how many more."""
-    items = list(items)
-    text = ", ".join(short(x, 60) for x in items[:limit])
-    return text + (f" and {len(items) - limit} more" if len(items) > limit else "")
-
-
-def spec(unit: str = "", *, gt: float | None = None, ge: float | None = None, lt: float | None = None,
-         le: float | None = None, doc: str = "", choices: tuple | None = None, items: str | None = None,
-         length: int | None = None, max_len: int | None = None, one_line: bool = False, why: str = "") -> dict:
-    """Field metadata: unit, bounds, choices; for lists the type of their ``items`` ('str' or 'number') and an
-    exact ``length``; for strings (and lists) a ``max_len``; ``one_line`` strings hold no line breaks or tabs;
-    ``why`` the reason for the bounds, told with an out-of-range refusal."""
-    return {"unit": unit, "gt": gt, "ge": ge, "lt": lt, "le": le, "doc": doc, "choices": choices, "items": items,
-            "length": length, "max_len": max_len, "one_line": one_line, "why": why}
-
-
-def format_bounds(meta: dict) -> str:
-    """The allowed range of a field as text, e.g. '>0 <=10' or 'auto|arrow|splu'."""
-    parts = [f"{word}{meta[op]:g}" for op, word in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="))
-             if meta.get(op) is not None]
-    if meta.get("choices"):
-        parts.append("|".join(meta["choices"]))
-    if meta.get("length"):
-        parts.append(f"{meta['length']} {meta.get('items') or 'item'}s")
-    return " ".join(parts)
-
 
 def _f(default, unit="", doc="", **bounds):
     return field(default=default, metadata=spec(unit, doc=doc, **bounds))
@@ -295,43 +224,6 @@ class Scene:
     def R_d(self) -> float:
         return 0.5 * self.plate.diameter
 
-    @property
-    def EI(self) -> float:
-        return math.pi / 4.0 * self.flagellum.youngs_modulus * self.flagellum.radius ** 4
-
-    @property
-    def force_scale(self) -> float:
-        """EI / L^2 (N): the flagellum's bending force, the unit of numerics.force_tol."""
-        return self.EI / self.flagellum.length ** 2
-
-    # the medium's coefficients: physics/medium.py (one home for the formulas)
-    @property
-    def eta_t(self) -> float:
-        return _medium.rft_coefficients(self)[0]
-
-    @property
-    def eta_p(self) -> float:
-        return _medium.rft_coefficients(self)[1]
-
-    @property
-    def head_drag_coefficient(self) -> float:
-        return _medium.head_drag_coefficient(self)
-
-    @property
-    def head_torque_coefficient(self) -> float:
-        return _medium.head_torque_coefficient(self)
-
-    @property
-    def relaxation_time(self) -> float:
-        """Elasto-viscous time eta_p L^4 / EI (s): omega_bar = omega * this."""
-        return self.eta_p * self.flagellum.length ** 4 / self.EI
-
-    def normalise_omega(self, omega: float) -> float:
-        return omega * self.relaxation_time
-
-    def normalise_speed(self, v: float) -> float:
-        return v * self.eta_p * self.flagellum.length ** 3 / self.EI
-
     # ---- conversion ----
     def to_dict(self) -> dict[str, dict[str, Any]]:
         out = {}
@@ -442,83 +334,6 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def _number(key: str, meta: dict, value: Any, what: str = "") -> float:
-    """``value`` as a finite float, or a SceneError naming ``key``."""
-    unit = meta["unit"] or "dimensionless"
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"{key}{what} must be a number ({unit}), got {short(value)}")
-    try:
-        value = float(value)
-    except OverflowError:                       # an integer beyond the float range
-        raise SceneError(f"{key}{what} = {short(value)} is out of range for a number ({unit})") from None
-    if not math.isfinite(value):
-        raise SceneError(f"{key}{what} must be finite, got {value!r}")
-    return value
-
-
-_BOUNDS = (("gt", lambda a, b: a > b, ">"), ("ge", lambda a, b: a >= b, ">="),
-           ("lt", lambda a, b: a < b, "<"), ("le", lambda a, b: a <= b, "<="))
-
-
-def _check_bounds(key: str, meta: dict, value: Any) -> None:
-    if all(meta.get(bound) is None or op(value, meta[bound]) for bound, op, _ in _BOUNDS):
-        return
-    unit = f" {meta['unit']}" if meta["unit"] else ""
-    allowed = " and ".join(f"{word} {meta[bound]:g}{unit}" for bound, _, word in _BOUNDS
-                           if meta.get(bound) is not None)
-    why = f": {meta['why']}" if meta.get("why") else ""
-    raise SceneError(f"{key} = {short(value)}{unit} is out of range: must be {allowed}{why}")
-
-
-def _check_value(section: str, f: dataclasses.Field, value: Any) -> Any:
-    key = f"{section}.{f.name}"
-    meta = f.metadata
-    default = f.default
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise SceneError(f"{key} must be true or false, got {short(value)}")
-        return value
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                # beyond 2**53 a float is not an exact integer: left a float, the range check refuses it
-                value = int(value) if abs(value) <= 2 ** 53 else value
-            else:
-                raise SceneError(f"{key} must be an integer, got {short(value)}")
-    elif isinstance(default, float):
-        value = _number(key, meta, value)
-    elif isinstance(default, str):
-        if not isinstance(value, str):
-            raise SceneError(f"{key} must be a string, got {short(value)}")
-        if meta.get("max_len") and len(value) > meta["max_len"]:
-            raise SceneError(f"{key} is {len(value)} characters long: at most {meta['max_len']} allowed")
-        bad = control_character(value, "" if meta.get("one_line") else "\t\n\r")
-        if bad:
-            raise SceneError(f"{key} = {short(value)} holds {bad}" +
-                             (": it is one line of printable text" if meta.get("one_line") else ""))
-    elif isinstance(default, tuple):
-        if not isinstance(value, (list, tuple)):
-            raise SceneError(f"{key} must be a list, got {short(value)}")
-        if meta.get("length") is not None and len(value) != meta["length"]:
-            raise SceneError(f"{key} must be a list of {meta['length']} {meta.get('items') or 'item'}s"
-                             f"{' (' + meta['unit'] + ')' if meta['unit'] else ''}, got {short(value)}")
-        if meta.get("max_len") and len(value) > meta["max_len"]:
-            raise SceneError(f"{key} has {len(value)} items: at most {meta['max_len']} allowed")
-        if meta.get("items") == "str":
-            bad = [x for x in value if not isinstance(x, str)]
-            if bad:
-                raise SceneError(f"{key} must be a list of names (strings), got {short(value)}")
-        elif meta.get("items") == "number":
-            value = [_number(key, meta, x, f"[{i}]") for i, x in enumerate(value)]
-            for x in value:
-                _check_bounds(key, meta, x)
-        return tuple(value)
-    if meta.get("choices") and value not in meta["choices"]:
-        raise SceneError(f"{key} = {short(value)} is not allowed; choose one of {', '.join(meta['choices'])}")
-    _check_bounds(key, meta, value)
-    return value
-
-
 def scene_from_dict(data: dict[str, Any], source: str = "", overrides: dict[str, Any] | None = None) -> Scene:
     """Validate a nested dict (as read from TOML) into a :class:`Scene`.
 
@@ -552,7 +367,7 @@ def scene_from_dict(data: dict[str, Any], source: str = "", overrides: dict[str,
         if bad:
             raise SceneError(f"unknown key(s) {_names(f'{s}.{k}' for k in bad)}; valid keys in [{s}]: "
                              f"{', '.join(fields)}")
-        kwargs = {k: _check_value(s, fields[k], v) for k, v in values.items()}
+        kwargs = {k: check_value(f"{s}.{k}", fields[k], v) for k, v in values.items()}
         sections[s] = cls(**kwargs)
     scene = Scene(**sections, source=source, file_data=data, overrides=overrides)
     _check_consistency(scene)
@@ -647,7 +462,7 @@ def _check_force_tol(sc: Scene) -> None:
         return                          # the check builds the network: only for the values it can refuse
     net = build_network(sc)
     roundoff, edge = net.residual_roundoff()
-    floor = NEWTON_ROUNDOFFS * roundoff / sc.force_scale
+    floor = NEWTON_ROUNDOFFS * roundoff / force_scale(sc)
     if tol >= floor:
         return
     width = f"{1e3 * net.edge_rest_length[edge]:.3g} mm"
@@ -686,112 +501,8 @@ def _check_proportions(sc: Scene) -> None:
 
 # ---------------------------------------------------------------- loading
 
-def builtin_scenes() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("flagbot_sim.scenes").iterdir()
-                  if p.name.endswith(".toml"))
-
-
-def portable_source(source: str | None) -> str | None:
-    """A scene's source as written into shared results: a built-in scene as ``flagbot_sim/scenes/<name>.toml``
-    (the same on every checkout and install), any other file as given."""
-    if not source:
-        return source
-    p = Path(source)
-    builtin = Path(str(resources.files("flagbot_sim.scenes")))
-    try:
-        return "flagbot_sim/scenes/" + p.resolve().relative_to(builtin.resolve()).as_posix()
-    except (ValueError, OSError):
-        return source
-
-
-def resolve_scene_path(name_or_path: str | Path) -> Path:
-    """The file a scene name or path means: a built-in scene's name, or an existing regular file (never a
-    directory, FIFO or device: reading one would fail or block)."""
-    if isinstance(name_or_path, str) and not name_or_path.strip():
-        raise SceneError(f"no scene given (an empty name); use a built-in scene ({', '.join(builtin_scenes())}) "
-                         "or a .toml path")
-    bad = control_character(str(name_or_path))
-    if bad:
-        raise SceneError(f"scene {short(str(name_or_path))} holds {bad}: a scene is a built-in name or a file "
-                         "path, on one line")
-    p = Path(name_or_path)
-    try:
-        st = p.stat()
-    except FileNotFoundError:
-        st = None
-    except (OSError, ValueError) as exc:             # ValueError: a NUL byte in the name
-        raise SceneError(f"scene {short(str(p))} cannot be read: {getattr(exc, 'strerror', None) or exc}") \
-            from None
-    if p.suffix == ".toml" or st is not None:
-        if st is None:
-            raise SceneError(f"scene file {short(str(p))} does not exist")
-        if not stat.S_ISREG(st.st_mode):
-            kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
-            raise SceneError(f"scene {short(str(p))} is {kind}; give a .toml file or a built-in scene name")
-        if not os.access(p, os.R_OK):
-            raise SceneError(f"scene file {short(str(p))} is not readable (permission denied)")
-        return p
-    if "/" not in str(name_or_path) and len(str(name_or_path)) < 256:
-        candidate = resources.files("flagbot_sim.scenes") / f"{name_or_path}.toml"
-        if candidate.is_file():
-            return Path(str(candidate))
-    raise SceneError(f"unknown scene {short(str(name_or_path))}: not a file, and not a built-in scene "
-                     f"({', '.join(builtin_scenes())})")
-
-
-def read_scene_text(path: Path) -> str:
-    """The text of a scene file: at most MAX_FILE_BYTES, UTF-8 (a leading BOM is dropped), as TOML requires.
-
-    The one reader of scene files, for the CLI and the nodes alike. It never blocks: the file is opened
-    non-blocking and must be a regular file (a FIFO, a directory or a device is refused before anything is read,
-    even one swapped in after :func:`resolve_scene_path` looked), and a file that grows while it is read is cut
-    off at the limit."""
-    shown = short(str(path))
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
-    except (OSError, ValueError) as exc:              # ValueError: a NUL byte in the name
-        raise SceneError(f"scene file {shown} cannot be read: {getattr(exc, 'strerror', None) or exc}") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
-                    else "a device or socket")
-            raise SceneError(f"scene {shown} is {kind}, not a scene file")
-        chunks, size = [], 0
-        while size <= MAX_FILE_BYTES:
-            chunk = os.read(fd, 65536)
-            if not chunk:
-                break
-            chunks.append(chunk)
-            size += len(chunk)
-    except OSError as exc:
-        raise SceneError(f"scene file {shown} cannot be read: {exc.strerror or exc}") from None
-    finally:
-        os.close(fd)
-    if size > MAX_FILE_BYTES:
-        raise SceneError(f"scene file {shown} is larger than {MAX_FILE_BYTES >> 20} MiB; a scene file holds a few "
-                         "dozen keys (the built-in ones are ~1 KiB)")
-    raw = b"".join(chunks)
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise SceneError(f"scene file {shown} is not UTF-8 text (TOML must be): byte "
-                         f"0x{raw[exc.start]:02x} at line {line}, column {column}") from None
-    return text.removeprefix("\ufeff")
-
-
 def _sets_nothing(data: dict) -> bool:
     return all(isinstance(v, dict) and not v for v in data.values())
-
-
-def node_overrides(n_flagella: int, scene_overrides) -> list[str]:
-    """Overrides as the ROS nodes take them: ``scene_overrides`` entries, then n_flagella unless it is 0."""
-    extra = [str(o) for o in scene_overrides if str(o).strip()]
-    if n_flagella:
-        extra.append(f"robot.n_flagella={int(n_flagella)}")
-    return extra
 
 
 def scene_from_text(text: str, path: Path) -> Scene:

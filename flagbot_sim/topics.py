@@ -35,3 +35,13 @@ SIM_TF = [TF, TF_STATIC]
 BEAM_PUBLISHED = [BEAM_SPEED, BEAM_OMEGA_H, BEAM_OMEGA_T]
 #: what the recorder records by default: every flagbot topic, the command stream and the clock
 DEFAULT_RECORD_TOPICS = [CMD_OMEGA] + SIM_PUBLISHED + SIM_TF + BEAM_PUBLISHED
+
+
+def node_overrides(n_flagella: int, scene_overrides) -> list[str]:
+    """The scene overrides a node's parameters mean: its ``scene_overrides`` entries, then n_flagella unless it is
+    0. Here, with the names, because the nodes (values.node_scene) and the re-simulation of their recordings
+    (runs.resim) must read the parameters the same way, and the library may not import the ROS layer."""
+    extra = [str(o) for o in scene_overrides if str(o).strip()]
+    if n_flagella:
+        extra.append(f"robot.n_flagella={int(n_flagella)}")
+    return extra

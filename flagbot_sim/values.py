@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, TypeVar
 
-from .scene import Scene, SceneError, control_character, load_scene, node_overrides
+from .fields import control_character
+from .scene import Scene, SceneError, load_scene
+from .topics import node_overrides
 
 MAX_STRING = 4096            # longest accepted string parameter (a path, a scene name, one override)
 MAX_OVERRIDES = 64           # most entries in scene_overrides

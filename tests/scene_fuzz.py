@@ -23,7 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from flagbot_sim.scene import SECTIONS, SceneError, builtin_scenes, load_scene, resolve_scene_path  # noqa: E402
+from flagbot_sim.scene import SECTIONS, SceneError, load_scene  # noqa: E402
+from flagbot_sim.scene_files import builtin_scenes, resolve_scene_path  # noqa: E402
 
 #: the longest error message accepted (the issue saw a 5 MB one echoing a 1e6-element array)
 MAX_MESSAGE = 400

@@ -11,6 +11,7 @@ from scipy.integrate import simpson
 from flagbot_sim.beam import (BeamParams, NLBSolveError, lb_deflection, lb_F_p, lb_F_x, lb_load, lb_tip_deflection,
                               solve_lb, solve_nlb, solve_nlb_coupled)
 from flagbot_sim.beam import nonlinear
+from flagbot_sim.physics.medium import relaxation_time
 from flagbot_sim.scene import load_scene
 
 
@@ -176,7 +177,7 @@ def test_clamped_flagellum_signs_agree_with_the_der_convention():
     scene = load_scene("clamped_flagellum", ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03",
                                              "motor.omega_rpm=1"])
     params = BeamParams.from_scene(scene)
-    omega = 0.39 / scene.relaxation_time
+    omega = 0.39 / relaxation_time(scene)
     sol = solve_nlb(params, omega, 0.0)
     w_L = lb_load(params, omega) * params.L ** 4 / (8 * params.EI)
     assert sol.w_tip > 0 and sol.F_x > 0 and sol.F_p > 0

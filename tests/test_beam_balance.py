@@ -8,7 +8,9 @@ import pytest
 from flagbot_sim.beam import (REGIMES, BeamParams, BeamSolveError, NLBSolveError, balance_residual,
                               flagellum_state, lb_F_p, lb_F_x, solve_balance, solve_nlb)
 from flagbot_sim.beam import balance as balance_module
-from flagbot_sim.scene import RPM, load_scene
+from flagbot_sim.physics import medium
+from flagbot_sim.scene import load_scene
+from flagbot_sim.units import RPM
 
 
 def design(name, n):
@@ -80,7 +82,7 @@ def test_normalised_curves_do_not_depend_on_units_or_scale(regime):
     for omega_T_bar in (5.0, 40.0, 300.0):
         rows, speeds = [], []
         for scene in scenes:
-            res = solve_balance(BeamParams.from_scene(scene), omega_T_bar / scene.relaxation_time, regime)
+            res = solve_balance(BeamParams.from_scene(scene), omega_T_bar / medium.relaxation_time(scene), regime)
             rows.append([res.omega_T_bar, res.omega_h_bar, res.omega_t_bar, res.v_bar, res.w_tip_over_L])
             speeds.append(res.v_h)
         rows = np.array(rows)
@@ -93,10 +95,11 @@ def test_normalisation_uses_L4_for_every_angular_speed():
     normalised speeds add up like the dimensional ones; v_bar = v eta_p L^3 / EI."""
     scene = load_scene("design1")
     res = solve_balance(BeamParams.from_scene(scene), scene.omega_T, "nlb")
-    assert res.omega_h_bar == pytest.approx(res.omega_h * scene.eta_p * scene.flagellum.length ** 4 / scene.EI)
+    eta_p, EI = medium.rft_coefficients(scene)[1], medium.bending_stiffness(scene)
+    assert res.omega_h_bar == pytest.approx(res.omega_h * eta_p * scene.flagellum.length ** 4 / EI)
     assert res.omega_h_bar + res.omega_t_bar == pytest.approx(res.omega_T_bar, rel=1e-12)
-    assert res.omega_T_bar == pytest.approx(scene.normalise_omega(scene.omega_T))
-    assert res.v_bar == pytest.approx(scene.normalise_speed(res.v_h))
+    assert res.omega_T_bar == pytest.approx(medium.normalise_omega(scene, scene.omega_T))
+    assert res.v_bar == pytest.approx(medium.normalise_speed(scene, res.v_h))
 
 
 def test_nlb_balance_tends_to_lb_at_low_motor_speed():

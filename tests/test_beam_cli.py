@@ -5,7 +5,8 @@ import pytest
 
 from flagbot_sim.beam import BeamParams, solve_balance
 from flagbot_sim.cli import main
-from flagbot_sim.scene import RPM, load_scene
+from flagbot_sim.scene import load_scene
+from flagbot_sim.units import RPM
 
 KEYS = {"omega_T", "omega_h", "omega_t", "v_h", "F_p", "F_x", "w_tip_over_L", "converged"}
 

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.medium import rft_coefficients
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.scene import load_scene
 
@@ -70,7 +71,8 @@ def test_rft_force_matches_paper_formula_for_a_straight_rod():
     rft = m.effect("rft")
     L = sc.flagellum.length
     x = st.q[: 3 * m.net.n_nodes].reshape(-1, 3)
-    for direction, eta in (([0.0, 0.0, 1.0], sc.eta_p), ([1.0, 0.0, 0.0], sc.eta_t)):
+    eta_t, eta_p = rft_coefficients(sc)
+    for direction, eta in (([0.0, 0.0, 1.0], eta_p), ([1.0, 0.0, 0.0], eta_t)):
         v = 1e-3 * np.array(direction)
         vq = np.zeros(m.ndof)
         vq[: 3 * m.net.n_nodes].reshape(-1, 3)[m.net.flagella_nodes[0]] = v

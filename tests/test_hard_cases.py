@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from flagbot_sim.physics import Simulation
-from flagbot_sim.scene import RPM, load_scene
+from flagbot_sim.scene import load_scene
+from flagbot_sim.units import RPM
 
 from fd import rel_err as rel
 

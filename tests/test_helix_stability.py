@@ -9,7 +9,8 @@ import pytest
 from flagbot_sim.physics import Simulation
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.physics.steady import SteadyFailed, SteadySolver, summary
-from flagbot_sim.scene import RPM, load_scene
+from flagbot_sim.scene import load_scene
+from flagbot_sim.units import RPM
 
 SOFT_HELIX = ["flagellum.helix_pitch=-0.05", "medium.model=viscous", "medium.mu=1.2", "flagellum.youngs_modulus=5e4"]
 

@@ -24,9 +24,9 @@ SRC = Path(__file__).resolve().parents[1] / PACKAGE
 #: ones before it. "flagbot_sim" itself (the version) is the package module alone, not everything under it.
 LAYERS = [
     ("base", ["flagbot_sim", "flagbot_sim.world", "flagbot_sim.topics", "flagbot_sim.plotlabels",
-              "flagbot_sim.progress", "flagbot_sim.optional", "flagbot_sim.pacer", "flagbot_sim.reference",
-              "flagbot_sim.scenes"]),
-    ("physics", ["flagbot_sim.physics", "flagbot_sim.scene", "flagbot_sim.kernels"]),
+              "flagbot_sim.progress", "flagbot_sim.optional", "flagbot_sim.pacer", "flagbot_sim.scenes",
+              "flagbot_sim.units", "flagbot_sim.fields", "flagbot_sim.scene_files"]),
+    ("physics", ["flagbot_sim.physics", "flagbot_sim.scene", "flagbot_sim.kernels", "flagbot_sim.reference"]),
     ("support", ["flagbot_sim.cliutil", "flagbot_sim.bag", "flagbot_sim.motor_profile", "flagbot_sim.urdf",
                  "flagbot_sim.tf_tree", "flagbot_sim.values"]),
     ("libraries", ["flagbot_sim.beam", "flagbot_sim.sweep", "flagbot_sim.fit", "flagbot_sim.runs",

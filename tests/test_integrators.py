@@ -11,7 +11,8 @@ import pytest
 from flagbot_sim.physics import Simulation
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.physics.steady import SteadySolver, summary
-from flagbot_sim.scene import RPM, load_scene
+from flagbot_sim.scene import load_scene
+from flagbot_sim.units import RPM
 
 DESIGN2_CLAMPED = ["flagellum.length=0.089", "medium.mu=2.125", "plate.diameter=0.03"]   # as in conftest.py
 SHORT = ["flagellum.length=0.05", "flagellum.edge_length=0.005"]     # a short clamped flagellum: 10 edges

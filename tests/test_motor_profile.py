@@ -5,7 +5,7 @@ import pytest
 from std_msgs.msg import Float64
 
 from flagbot_sim.motor_profile import ProfileError, parse
-from flagbot_sim.scene import RPM
+from flagbot_sim.units import RPM
 
 from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, spin_until
 

@@ -7,6 +7,7 @@ import pytest
 from cli_helpers import flagbot
 
 from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.medium import force_scale
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.scene import MIN_NEWTON_ITERATIONS, NumericsSection, SceneError, load_scene
 
@@ -17,7 +18,7 @@ def floor_of(name, overrides=()):
     """The model's Newton floor of a scene, relative to EI/L^2 (what the solver stops at whatever is asked)."""
     sc = load_scene(name, list(overrides))
     model = RobotModel(sc)
-    return model.force_floor / sc.force_scale
+    return model.force_floor / force_scale(sc)
 
 
 @pytest.mark.parametrize("tol", ["1e-300", "1e-12", "1e-8"])
@@ -32,7 +33,7 @@ def test_a_force_tolerance_below_the_round_off_floor_is_refused_naming_the_key_a
     # the bound it quotes is accepted (rounded up, never below the floor), and the model then uses it as is
     bound = float(re.search(r"use >= (\S+)", text).group(1))
     sc = load_scene("design1", [f"numerics.force_tol={bound}"])
-    assert bound >= floor and RobotModel(sc).force_tol == pytest.approx(bound * sc.force_scale, rel=1e-12)
+    assert bound >= floor and RobotModel(sc).force_tol == pytest.approx(bound * force_scale(sc), rel=1e-12)
 
 
 def test_scene_and_model_draw_the_line_at_the_same_floor():
@@ -57,7 +58,7 @@ def test_the_default_tolerance_is_accepted_on_a_robot_whose_floor_is_coarser():
     for extra in ([], [f"numerics.force_tol={DEFAULT_TOL}"]):
         sc = load_scene("design1", over + extra)
         model = RobotModel(sc)
-        assert model.force_tol == model.force_floor > DEFAULT_TOL * sc.force_scale
+        assert model.force_tol == model.force_floor > DEFAULT_TOL * force_scale(sc)
 
 
 @pytest.mark.parametrize("cap", list(range(1, MIN_NEWTON_ITERATIONS)))

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.medium import head_torque_coefficient
 from flagbot_sim.physics.observe import KEEP_WINDOWS, SAMPLES_PER_WINDOW, SteadyDetector
 from flagbot_sim.scene import load_scene
 
@@ -35,7 +36,7 @@ def test_snapshot_is_the_state_in_the_fixed_frame():
     assert s.angular_velocity[0] == pytest.approx(s.omega_h, rel=1e-2)
     assert s.omega_h > 0 and s.omega_t > 0 and s.drive_angle == pytest.approx(sim.omega_T * sim.time, rel=1e-12)
     # at steady spin the motor torque balances the head's Stokes torque
-    assert s.motor_torque == pytest.approx(sim.scene.head_torque_coefficient * s.omega_h, rel=2e-2)
+    assert s.motor_torque == pytest.approx(head_torque_coefficient(sim.scene) * s.omega_h, rel=2e-2)
 
 
 def test_steady_means_within_rtol_of_the_final_value_for_a_slow_approach():

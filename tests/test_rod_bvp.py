@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.medium import bending_stiffness, rft_coefficients
 from flagbot_sim.reference import RodBVPError, from_scene, solve_clamped_rod
 from flagbot_sim.scene import load_scene
 
@@ -17,7 +18,8 @@ DESIGN1 = load_scene("clamped_flagellum")                      # L = 0.111 m, r0
 
 
 def _params(sc):
-    return dict(L=sc.flagellum.length, R_d=sc.R_d, EI=sc.EI, eta_t=sc.eta_t, eta_p=sc.eta_p)
+    eta_t, eta_p = rft_coefficients(sc)
+    return dict(L=sc.flagellum.length, R_d=sc.R_d, EI=bending_stiffness(sc), eta_t=eta_t, eta_p=eta_p)
 
 
 # ---------------------------------------------------------------------------------------------- the equations

@@ -6,7 +6,8 @@ import time
 
 import pytest
 
-from flagbot_sim.scene import MAX_FILE_BYTES, SceneError, load_scene, read_scene_text
+from flagbot_sim.scene import SceneError, load_scene
+from flagbot_sim.scene_files import MAX_FILE_BYTES, read_scene_text
 from flagbot_sim.values import TimeLimited, node_scene
 
 

@@ -3,7 +3,10 @@ import math
 
 import pytest
 
-from flagbot_sim.scene import RPM, SceneError, builtin_scenes, load_scene, parse_overrides, scene_from_dict
+from flagbot_sim.physics import medium
+from flagbot_sim.scene import SceneError, load_scene, parse_overrides, scene_from_dict
+from flagbot_sim.scene_files import builtin_scenes
+from flagbot_sim.units import RPM
 
 
 def test_builtin_scenes_carry_the_papers_parameters():
@@ -26,14 +29,18 @@ def test_builtin_scenes_carry_the_papers_parameters():
 def test_derived_quantities_follow_the_paper():
     sc = load_scene("design1")
     L, r0, mu = 0.111, 3.2e-3, 6.828
-    assert sc.eta_t == pytest.approx(2 * math.pi * mu / (math.log(2 * L / r0) - 0.5))
-    assert sc.eta_p == pytest.approx(4 * math.pi * mu / (math.log(2 * L / r0) + 0.5))
-    assert sc.EI == pytest.approx(math.pi / 4 * 1.2e6 * r0 ** 4)
+    eta_t, eta_p = medium.rft_coefficients(sc)
+    EI = medium.bending_stiffness(sc)
+    assert eta_t == pytest.approx(2 * math.pi * mu / (math.log(2 * L / r0) - 0.5))
+    assert eta_p == pytest.approx(4 * math.pi * mu / (math.log(2 * L / r0) + 0.5))
+    assert EI == pytest.approx(math.pi / 4 * 1.2e6 * r0 ** 4)
+    assert medium.force_scale(sc) == pytest.approx(EI / L ** 2)
     assert sc.R_d == pytest.approx(0.02)
     assert sc.omega_T == pytest.approx(100 * 2 * math.pi / 60)
-    assert sc.head_drag_coefficient == pytest.approx(2.42 * 6 * math.pi * mu * 0.02)
-    assert sc.head_torque_coefficient == pytest.approx(0.039 * 8 * math.pi * mu * 0.02 ** 3)
-    assert sc.normalise_omega(1.0) == pytest.approx(sc.eta_p * L ** 4 / sc.EI)
+    assert medium.head_drag_coefficient(sc) == pytest.approx(2.42 * 6 * math.pi * mu * 0.02)
+    assert medium.head_torque_coefficient(sc) == pytest.approx(0.039 * 8 * math.pi * mu * 0.02 ** 3)
+    assert medium.normalise_omega(sc, 1.0) == pytest.approx(eta_p * L ** 4 / EI)
+    assert medium.normalise_speed(sc, 1.0) == pytest.approx(eta_p * L ** 3 / EI)
 
 
 def test_overrides_and_units():

@@ -12,7 +12,8 @@ import scene_fuzz as F
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from flagbot_sim.scene import SceneError, load_scene, resolve_scene_path
+from flagbot_sim.scene import SceneError, load_scene
+from flagbot_sim.scene_files import resolve_scene_path
 
 BASES = F.base_scenes()
 KEYS = F.declared_keys()

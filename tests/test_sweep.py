@@ -313,7 +313,7 @@ def test_dask_engine_submits_to_the_given_scheduler(tmp_path):
 def test_a_sweep_names_a_built_in_scene_the_same_on_every_checkout(tmp_path):
     """sweep.json is committed and shared: a built-in scene is written as its place in the package, not as this
     checkout's absolute path; any other file keeps the path it was given."""
-    from flagbot_sim.scene import portable_source, resolve_scene_path
+    from flagbot_sim.scene_files import portable_source, resolve_scene_path
     assert portable_source(str(resolve_scene_path("design1"))) == "flagbot_sim/scenes/design1.toml"
     own = tmp_path / "mine.toml"
     own.write_text("")

@@ -11,7 +11,8 @@ import os
 
 import pytest
 
-from flagbot_sim.scene import SceneError, control_character, load_scene
+from flagbot_sim.fields import control_character
+from flagbot_sim.scene import SceneError, load_scene
 from flagbot_sim.values import node_scene, record_refusal, text_refusal
 
 from cli_helpers import flagbot
@@ -111,7 +112,7 @@ def test_rclpy_ends_a_string_at_its_first_nul():
 
 def bom_scene(tmp_path):
     """design2 with n = 3, its file starting with a UTF-8 byte order mark (some Windows editors write one)."""
-    from flagbot_sim.scene import resolve_scene_path
+    from flagbot_sim.scene_files import resolve_scene_path
     text = resolve_scene_path("design2").read_text().replace("n_flagella = 2", "n_flagella = 3")
     assert "n_flagella = 3" in text
     f = tmp_path / "bom_design2.toml"

@@ -7,7 +7,6 @@ import math
 import pytest
 
 from flagbot_sim.physics import medium
-
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.physics.steady import SteadySolver, summary
 from flagbot_sim.reference.rod_bvp import from_scene, solve_clamped_rod
@@ -23,33 +22,34 @@ def test_coefficients_are_the_published_formulas():
     sc = load_scene("design1")
     L, r0, mu, R = sc.flagellum.length, sc.flagellum.radius, sc.medium.mu, sc.head.radius
     assert sc.medium.model == "granular_rft"
-    assert sc.eta_t == pytest.approx(2 * math.pi * mu / (math.log(2 * L / r0) - 0.5), rel=1e-14)
-    assert sc.eta_p == pytest.approx(4 * math.pi * mu / (math.log(2 * L / r0) + 0.5), rel=1e-14)
-    assert sc.head_drag_coefficient == pytest.approx(sc.head.C1 * 6 * math.pi * mu * R, rel=1e-14)
+    assert medium.rft_coefficients(sc)[0] == pytest.approx(2 * math.pi * mu / (math.log(2 * L / r0) - 0.5), rel=1e-14)
+    assert medium.rft_coefficients(sc)[1] == pytest.approx(4 * math.pi * mu / (math.log(2 * L / r0) + 0.5), rel=1e-14)
+    assert medium.head_drag_coefficient(sc) == pytest.approx(sc.head.C1 * 6 * math.pi * mu * R, rel=1e-14)
     # a straight rod in a fluid: Gray & Hancock (1955) with the length L as the wavelength
     sc = load_scene("design1", VISCOUS)
     mu = 1.2
     assert medium.rft_formula(sc) == "gray_hancock_1955"
-    assert sc.eta_t == pytest.approx(2 * math.pi * mu / (math.log(2 * L / r0) - 0.5), rel=1e-14)
-    assert sc.eta_p == pytest.approx(4 * math.pi * mu / (math.log(2 * L / r0) + 0.5), rel=1e-14)
+    assert medium.rft_coefficients(sc)[0] == pytest.approx(2 * math.pi * mu / (math.log(2 * L / r0) - 0.5), rel=1e-14)
+    assert medium.rft_coefficients(sc)[1] == pytest.approx(4 * math.pi * mu / (math.log(2 * L / r0) + 0.5), rel=1e-14)
     # the exact Stokes sphere: C1 and C2 (the granular fit) do not enter
-    assert sc.head_drag_coefficient == pytest.approx(6 * math.pi * mu * R, rel=1e-14)
-    assert sc.head_torque_coefficient == pytest.approx(8 * math.pi * mu * R ** 3, rel=1e-14)
-    assert load_scene("design1", VISCOUS + ["head.C1=7", "head.C2=3"]).head_drag_coefficient == \
-        sc.head_drag_coefficient
+    assert medium.head_drag_coefficient(sc) == pytest.approx(6 * math.pi * mu * R, rel=1e-14)
+    assert medium.head_torque_coefficient(sc) == pytest.approx(8 * math.pi * mu * R ** 3, rel=1e-14)
+    assert medium.head_drag_coefficient(load_scene("design1", VISCOUS + ["head.C1=7", "head.C2=3"])) == \
+        medium.head_drag_coefficient(sc)
     # a helix in a fluid: Lighthill (1976), q = 0.09 x the arc length of one turn
     P = -0.05
     sc = load_scene("design1", VISCOUS + [f"flagellum.helix_pitch={P}"])
     Lam = math.sqrt(P ** 2 + (2 * math.pi * sc.R_d) ** 2)
     q = 0.09 * Lam
     assert medium.rft_formula(sc) == "lighthill_1976"
-    assert sc.eta_t == pytest.approx(2 * math.pi * mu / math.log(2 * q / r0), rel=1e-14)
-    assert sc.eta_p == pytest.approx(4 * math.pi * mu / (math.log(2 * q / r0) + 0.5), rel=1e-14)
+    assert medium.rft_coefficients(sc)[0] == pytest.approx(2 * math.pi * mu / math.log(2 * q / r0), rel=1e-14)
+    assert medium.rft_coefficients(sc)[1] == pytest.approx(4 * math.pi * mu / (math.log(2 * q / r0) + 0.5),
+                                                           rel=1e-14)
     # and the model's effects use exactly these
     m = RobotModel(sc)
-    assert (m.effect("rft").eta_t, m.effect("rft").eta_p) == (sc.eta_t, sc.eta_p)
-    assert m.effect("head_drag").c == sc.head_drag_coefficient
-    assert m.effect("head_torque").c == sc.head_torque_coefficient
+    assert (m.effect("rft").eta_t, m.effect("rft").eta_p) == medium.rft_coefficients(sc)
+    assert m.effect("head_drag").c == medium.head_drag_coefficient(sc)
+    assert m.effect("head_torque").c == medium.head_torque_coefficient(sc)
 
 
 def test_free_robot_in_the_fluid_balances_the_exact_stokes_torque():
@@ -58,8 +58,8 @@ def test_free_robot_in_the_fluid_balances_the_exact_stokes_torque():
     st = summary(m, SteadySolver(m).solve(sc.omega_T))
     assert st["v"] > 0
     assert st["motor_torque"] == pytest.approx(8 * math.pi * 1.2 * sc.head.radius ** 3 * st["omega_h"], rel=1e-6)
-    assert st["rft_coefficients"] == {"model": "viscous", "formula": "lighthill_1976", "eta_t": sc.eta_t,
-                                      "eta_n": sc.eta_p}
+    eta_t, eta_n = medium.rft_coefficients(sc)
+    assert st["rft_coefficients"] == {"model": "viscous", "formula": "lighthill_1976", "eta_t": eta_t, "eta_n": eta_n}
 
 
 def test_every_run_and_steady_json_reports_the_coefficients():
@@ -70,8 +70,9 @@ def test_every_run_and_steady_json_reports_the_coefficients():
         p = flagbot(*args)
         assert p.returncode == 0, p.stderr
         rc = json.loads(p.stdout)["rft_coefficients"]
-        assert (rc["eta_t"], rc["eta_n"], rc["model"]) == (pytest.approx(sc.eta_t, rel=1e-12),
-                                                           pytest.approx(sc.eta_p, rel=1e-12), "viscous")
+        eta_t, eta_n = medium.rft_coefficients(sc)
+        assert (rc["eta_t"], rc["eta_n"], rc["model"]) == (pytest.approx(eta_t, rel=1e-12),
+                                                           pytest.approx(eta_n, rel=1e-12), "viscous")
 
 
 def closed_form(sc, omega):
@@ -80,8 +81,9 @@ def closed_form(sc, omega):
     R, P, L = sc.R_d, sc.flagellum.helix_pitch, sc.flagellum.length
     th = math.atan2(2 * math.pi * R, abs(P))
     s, c = math.sin(th), math.cos(th)
-    Fx = math.copysign(1.0, P) * (sc.eta_p - sc.eta_t) * omega * R * s * c * L
-    Tx = -omega * R ** 2 * (sc.eta_t * s ** 2 + sc.eta_p * c ** 2) * L
+    eta_t, eta_n = medium.rft_coefficients(sc)
+    Fx = math.copysign(1.0, P) * (eta_n - eta_t) * omega * R * s * c * L
+    Tx = -omega * R ** 2 * (eta_t * s ** 2 + eta_n * c ** 2) * L
     return Fx, Tx
 
 
@@ -117,8 +119,8 @@ def test_flexible_straight_rod_in_the_fluid_matches_the_rod_bvp():
     L, r0, mu = sc.flagellum.length, sc.flagellum.radius, 1.2
     eta_t = 2 * math.pi * mu / (math.log(2 * L / r0) - 0.5)
     eta_n = 4 * math.pi * mu / (math.log(2 * L / r0) + 0.5)
-    assert eta_n * sc.omega_T * L ** 4 / sc.EI > 10
-    ref = solve_clamped_rod(L, sc.R_d, sc.EI, eta_t, eta_n, sc.omega_T,
+    assert eta_n * sc.omega_T * L ** 4 / medium.bending_stiffness(sc) > 10
+    ref = solve_clamped_rod(L, sc.R_d, medium.bending_stiffness(sc), eta_t, eta_n, sc.omega_T,
                             rho_A=sc.flagellum.density * math.pi * r0 ** 2)
     assert ref.converged
     m = RobotModel(sc)

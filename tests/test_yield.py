@@ -15,9 +15,11 @@ from flagbot_sim.fit.data import read_data
 from flagbot_sim.fit.fit import parse_parameters, run_fit
 from flagbot_sim.fit.pool import Engine
 from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.medium import head_drag_coefficient
 from flagbot_sim.physics.model import RobotModel
 from flagbot_sim.physics.steady import SteadySolver
-from flagbot_sim.scene import RPM, load_scene
+from flagbot_sim.scene import load_scene
+from flagbot_sim.units import RPM
 
 from fd import rel_err
 
@@ -86,7 +88,7 @@ def test_steady_jacobian_of_the_yield_matches_finite_differences():
         col = A.toarray()[: m.ndof, m.ndof + 1]
         assert rel_err(col, col_fd) < 1e-6
         head = m.net.node_dofs(m.net.head_nodes)[:, 0]
-        drag = sc.head_drag_coefficient / 3
+        drag = head_drag_coefficient(sc) / 3
         # on the head nodes: Stokes drag plus the yield's slope F_y/3 * eps^2 / (U^2 + eps^2)^1.5
         expected = drag + sc.medium.yield_force / 3 * eps ** 2 / (U * U + eps * eps) ** 1.5
         assert col[head] == pytest.approx(np.full(3, expected), rel=1e-9)

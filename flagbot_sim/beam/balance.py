@@ -36,7 +36,7 @@ from scipy.optimize import brentq
 from .linear import FlagellumSolution, lb_F_p, solve_lb
 from .nonlinear import DEFAULT_TOL, BeamSolveError, NLBSolveError, solve_nlb, solve_nlb_coupled
 from .params import BeamParams
-from ..scene import RPM
+from ..units import RPM
 
 REGIMES = ("lb", "nlb-nohead", "nlb")
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..physics import medium
 from ..scene import Scene, SceneError
 
 
@@ -59,9 +60,10 @@ class BeamParams:
             if value <= 0 and scene.medium.model == "granular_rft":   # (the viscous head is the exact sphere)
                 raise SceneError(f"{key} = {value!r}: the beam estimator needs a head drag and torque "
                                  f"(Eqs. vHead, OHead divide by them); set {key} > 0")
-        return cls(n=scene.robot.n_flagella, L=scene.flagellum.length, EI=scene.EI, eta_t=scene.eta_t,
-                   eta_p=scene.eta_p, R_d=scene.R_d, c_drag=scene.head_drag_coefficient,
-                   c_torque=scene.head_torque_coefficient)
+        eta_t, eta_p = medium.rft_coefficients(scene)
+        return cls(n=scene.robot.n_flagella, L=scene.flagellum.length, EI=medium.bending_stiffness(scene),
+                   eta_t=eta_t, eta_p=eta_p, R_d=scene.R_d, c_drag=medium.head_drag_coefficient(scene),
+                   c_torque=medium.head_torque_coefficient(scene))
 
     # ---- dimensionless groups (paper section "Parameter fitting") ----
     @property

@@ -14,7 +14,8 @@ import time
 import numpy as np
 import scipy
 
-from ..scene import RPM, load_scene
+from ..scene import load_scene
+from ..units import RPM
 from .balance import REGIMES, solve_balance, solve_balance_curve
 from .nonlinear import solve_nlb
 from .params import BeamParams

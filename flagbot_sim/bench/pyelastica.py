@@ -44,6 +44,7 @@ import numpy as np
 
 from ..cliutil import json_output
 from ..optional import MissingExtra, available, require
+from ..physics.medium import normalise_omega, rft_coefficients
 from ..reference import from_scene
 from ..scene import load_scene
 
@@ -312,7 +313,7 @@ class ElasticaRun:
         sc = scene_for(rpm)
         fl = sc.flagellum
         self.omega = sc.omega_T
-        self.eta_t, self.eta_p = sc.eta_t, sc.eta_p
+        self.eta_t, self.eta_p = rft_coefficients(sc)
         G = fl.youngs_modulus / (2.0 * (1.0 + fl.poisson_ratio))
         if clamp == "centre":           # n elements of length l with (n - 1/2) l = L: element 0 spans [-l/2, l/2]
             length = fl.length * n_elements / (n_elements - 0.5)
@@ -445,7 +446,7 @@ def compare(rpm=10.0, tol=0.01, confirm=5.0, max_time=40.0, sample=0.1, der_sett
     sc = scene_for(rpm)
     L = sc.flagellum.length
     log(f"reference (rod BVP, {ref.seconds * 1e3:.0f} ms): omega = {rpm:g} rpm (omega_bar = "
-        f"{sc.normalise_omega(sc.omega_T):.3g}), tip z = {ref.z * 1e3:.4f} mm, Tx = {ref.Tx:.5e} N m, "
+        f"{normalise_omega(sc, sc.omega_T):.3g}), tip z = {ref.z * 1e3:.4f} mm, Tx = {ref.Tx:.5e} N m, "
         f"Fx = {ref.Fx:.5e} N")
     if abs(ref.z) < 0.05 * L * abs(sc.R_d / L):
         log("warning: the reference tip z is small at this omega; the relative |z| criterion is severe")

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import math
 
-from ..scene import RPM, SceneError, load_scene
+from ..scene import SceneError, load_scene
+from ..units import RPM
 from ..beam.balance import REGIMES, solve_balance_curve
 from ..beam.params import BeamParams
 

@@ -14,7 +14,9 @@ from ..cliutil import check_out_file, finite_float, make_out_dir
 from ..ros.demo import (HARD_LIMIT_FACTOR, STALL, START_TIMEOUT, DemoFailure, NodeProcess, default_log_dir,
                         demo_domain, exit_text, format_table, monitor, report_failure, step_table,
                         use_demo_environment)
-from ..scene import RPM, SceneError, load_scene, node_overrides
+from ..topics import node_overrides
+from ..scene import SceneError, load_scene
+from ..units import RPM
 
 
 def register(sub) -> None:

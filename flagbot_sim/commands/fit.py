@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 from ..cliutil import add_scene_arguments, json_output, make_out_dir
-from ..scene import RPM, load_scene
+from ..scene import load_scene
+from ..units import RPM
 from ..sweep.engines import ENGINES, default_workers
 from ..fit.data import _short_key
 from ..fit.evaluate import RPM_KEY

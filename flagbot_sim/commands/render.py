@@ -8,7 +8,8 @@ import math
 import sys
 from pathlib import Path
 
-from ..scene import RPM, SceneError, load_scene
+from ..scene import SceneError, load_scene
+from ..units import RPM
 from ..view.render import (DEFAULT_SNAPSHOTS, LAYOUTS, RenderError, animation, common_times, design_name, groups_of,
                            Row, is_recording, recorded_row, run_up, simulate_row, take_row)
 

@@ -5,7 +5,9 @@ from __future__ import annotations
 import time
 
 from ..cliutil import add_scene_arguments, finite_text, json_output, process_age
-from ..scene import RPM, SceneError, TimeSection, load_scene
+from ..physics.medium import normalise_omega, normalise_speed
+from ..scene import SceneError, TimeSection, load_scene
+from ..units import RPM
 
 
 def register(sub, view_options: bool = True) -> None:
@@ -111,8 +113,8 @@ def format_summary(scene, out: dict) -> str:
                   f"{finite_text(share, '.1f')}% of omega_T)",
                   f"  omega_t = {g('omega_t', '+.5f')} rad/s ({g('omega_t', '+.2f', 1 / RPM)} rpm)",
                   f"  v       = {g('v', '+.6e')} m/s ({g('v', '+.4f', 1e3)} mm/s, positive = head first)",
-                  f"  normalised: omega_T_bar = {finite_text(scene.normalise_omega(omega_T), '.2f')}, "
-                  f"v_bar = {finite_text(None if v is None else scene.normalise_speed(v), '.4f')}"]
+                  f"  normalised: omega_T_bar = {finite_text(normalise_omega(scene, omega_T), '.2f')}, "
+                  f"v_bar = {finite_text(None if v is None else normalise_speed(scene, v), '.4f')}"]
     if out.get("rft_coefficients"):
         from ..physics.medium import describe
         lines.append("  " + describe(out["rft_coefficients"]))

@@ -10,7 +10,9 @@ def register(sub) -> None:
 def cmd_scenes(args) -> int:
     import dataclasses
 
-    from ..scene import EFFECTS, SECTIONS, builtin_scenes, format_bounds
+    from ..fields import format_bounds
+    from ..scene import EFFECTS, SECTIONS
+    from ..scene_files import builtin_scenes
     print("built-in scenes:", ", ".join(builtin_scenes()))
     print("\neffects:")
     width = max(map(len, EFFECTS))

@@ -9,7 +9,8 @@ import math
 import sys
 
 from ..cliutil import add_scene_arguments, json_output, process_age
-from ..scene import RPM, SceneError, load_scene
+from ..scene import SceneError, load_scene
+from ..units import RPM
 
 
 def register(sub) -> None:

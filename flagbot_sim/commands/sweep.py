@@ -106,7 +106,8 @@ def _progress_text(res: dict) -> str:
 
 def cmd_sweep(args) -> int:
     from ..progress import ProgressBar
-    from ..scene import load_scene, portable_source
+    from ..scene import load_scene
+    from ..scene_files import portable_source
 
     base = load_scene(args.scene, args.overrides)
     grid, points = validate(base, parse_grid(args.grid), base.overrides)     # base.overrides: the parsed --set

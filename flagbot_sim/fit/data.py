@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..cliutil import finite_float
-from ..scene import RPM, SECTIONS, Scene, SceneError, _split_key
+from ..scene import SECTIONS, Scene, SceneError, _split_key
+from ..units import RPM
 
 #: output columns that can be fitted, with their units
 OUTPUTS = {"v": "m/s", "omega_h": "rad/s"}

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
+from .medium import head_drag_coefficient, head_torque_coefficient, rft_coefficients
 from .network import RodNetwork
 
 if TYPE_CHECKING:
@@ -219,7 +220,7 @@ class RFTDrag(Effect):
 
     @classmethod
     def from_scene(cls, scene, net, elastic):
-        return cls(net, scene.eta_t, scene.eta_p)
+        return cls(net, *rft_coefficients(scene))
 
     def blocks(self):
         return [(self.dof_k, self.dof_k), (self.dof_k, self.dof_a), (self.dof_k, self.dof_b)]
@@ -263,7 +264,7 @@ class HeadDrag(Effect):
 
     @classmethod
     def from_scene(cls, scene, net, elastic):
-        return cls(net, scene.head_drag_coefficient)
+        return cls(net, head_drag_coefficient(scene))
 
     def blocks(self):
         return [(self.dofs[:, None], self.dofs[:, None])]
@@ -304,7 +305,7 @@ class HeadTorque(Effect):
 
     @classmethod
     def from_scene(cls, scene, net, elastic):
-        return cls(net, scene.head_torque_coefficient)
+        return cls(net, head_torque_coefficient(scene))
 
     def blocks(self):
         th = np.array([[self.dof]])

@@ -483,16 +483,16 @@ def _scatter(dofs, slots, grad, Hs, r, J, want_hessian):
 
 @kernel
 def _bend_twist(x, theta, t, tc, length, d1, d2, rt, nodes, edges, sign, beta, kappa_bar, tau_bar, k_bend,
-                k_twist, dofs, slots, twist_hinge, twist_offset, S, r, J, want_hessian):
+                k_twist, dofs, slots, twist_hinge, twist_offset, S, W, r, J, want_hessian):
     """Bend + twist forces of every hinge into r (and their Hessian into J): the stages in order.
 
     Arguments: positions and twist angles; the trial frames (t, t_committed, length, d1, d2, reference twist);
     the springs (nodes, edges, sign, beta, rest curvature and twist, stiffnesses, local DOFs and CSC slots); the
     motor's natural-twist offset; the outputs: S (H, 6) each hinge's lengths and strains (see _hinge_geometry:
-    what ElasticModel.hinge_strains reads), r, J."""
+    what ElasticModel.hinge_strains reads), W (H, 3) its moments (_hinge_weights: ElasticModel.hinge_moments),
+    r, J."""
     H, Ne = nodes.shape[0], t.shape[0]
     V = np.empty((H, 21))
-    W = np.empty((H, 3))
     G = np.empty((H, 33))
     grad = np.empty((H, 11))
     Hs = np.empty((H, 121)) if want_hessian else np.empty((0, 121))
@@ -551,6 +551,7 @@ class ElasticModel:
         self.stretch_slots = np.zeros((net.n_edges, 36), np.int64)
         self.hinge_slots = np.zeros((net.n_hinges, 121), np.int64)
         self._strains = np.empty((net.n_hinges, 6))           # _bend_twist's per-hinge strains, a work array
+        self._moments = np.empty((net.n_hinges, 3))           # and moments
         # rest strains from the undeformed configuration with theta = 0
         q0 = net.initial_q()
         x0 = self.positions(q0)
@@ -588,8 +589,18 @@ class ElasticModel:
         Read from the springs' own evaluation (its gradient discarded): a kernel of its own for the strains alone
         cost a first run ~0.2 s of compiling, for a model's start and the motor torque of each snapshot."""
         S = np.empty((self.net.n_hinges, 6))
-        self._bend_twist(q, fr, S, np.zeros(self.ndof), None)
+        self._bend_twist(q, fr, S, np.empty((self.net.n_hinges, 3)), np.zeros(self.ndof), None)
         return S[:, 3].copy(), S[:, 4].copy(), S[:, 5].copy()
+
+    def hinge_moments(self, q: np.ndarray, fr: TrialFrames, twist_hinge: int = -1,
+                      twist_offset: float = 0.0) -> np.ndarray:
+        """(H, 3): every hinge's bending moments and twisting moment w_i = k_i (s_i - s_i_bar) (the energy's
+        derivative w.r.t. each strain; hinge ``twist_hinge``'s natural twist shifted by ``twist_offset``), read
+        from the springs' own evaluation like :meth:`hinge_strains`."""
+        W = np.empty((self.net.n_hinges, 3))
+        self._bend_twist(q, fr, np.empty((self.net.n_hinges, 6)), W, np.zeros(self.ndof), None, twist_hinge,
+                         twist_offset)
+        return W
 
     def stretch_strain(self, fr: TrialFrames) -> np.ndarray:
         return fr.length / self.net.edge_rest_length - 1.0
@@ -609,13 +620,13 @@ class ElasticModel:
         net = self.net
         _stretch(fr.t, fr.length, net.edge_rest_length, net.EA, self.stretch_dofs, self.stretch_slots, r,
                  J if want else np.empty(0), want)
-        self._bend_twist(q, fr, self._strains, r, J, twist_hinge, twist_offset)
+        self._bend_twist(q, fr, self._strains, self._moments, r, J, twist_hinge, twist_offset)
 
-    def _bend_twist(self, q, fr: TrialFrames, S: np.ndarray, r: np.ndarray, J: np.ndarray | None,
+    def _bend_twist(self, q, fr: TrialFrames, S: np.ndarray, W: np.ndarray, r: np.ndarray, J: np.ndarray | None,
                     twist_hinge: int = -1, twist_offset: float = 0.0) -> None:
         want = J is not None
         net = self.net
         _bend_twist(self.positions(q), q[3 * self.n_nodes:], fr.t, fr.t_committed, fr.length, fr.d1, fr.d2,
                     fr.ref_twist, net.hinge_nodes, net.hinge_edges, self.sign, self.beta, self.kappa_bar,
                     self.tau_bar, self.k_bend, self.k_twist, self.hinge_dofs, self.hinge_slots, twist_hinge,
-                    twist_offset, S, r, J if want else np.empty(0), want)
+                    twist_offset, S, W, r, J if want else np.empty(0), want)

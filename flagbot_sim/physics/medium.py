@@ -13,6 +13,11 @@ Two media (scene key ``medium.model``; sources and discussion in docs/physics.md
   Lambda, Lambda the flagellum's arc length per turn. The head: exact Stokes drag 6 pi mu R_h v and torque
   8 pi mu R_h^3 omega on a sphere (C1, C2 are the granular model's fitted factors and do not enter).
 
+Against the flagellum's bending stiffness EI they set the elasto-viscous time eta_p L^4 / EI, the unit of the
+paper's normalised speeds (:func:`relaxation_time`, :func:`normalise_omega`, :func:`normalise_speed`). The effects
+(:mod:`.effects`), the beam theory and the reference rod take their coefficients from here; a scene only declares
+and validates the values they are made of.
+
 Every function takes a scene (duck-typed: its ``medium``, ``flagellum``, ``head`` and ``plate`` sections). Plain
 Python (no numba): the scene validator imports it.
 """
@@ -76,6 +81,31 @@ def head_drag_coefficient(scene) -> float:
 def head_torque_coefficient(scene) -> float:
     """N m s: the head's torque per spin rate, C2 8 pi mu R_h^3 (granular_rft) or 8 pi mu R_h^3 (viscous)."""
     return _head_factors(scene)[1] * 8.0 * math.pi * scene.medium.mu * scene.head.radius ** 3
+
+
+def bending_stiffness(scene) -> float:
+    """EI = pi/4 E r0^4 (N m^2) of the flagellum, the stiffness the medium's load is measured against."""
+    return math.pi / 4.0 * scene.flagellum.youngs_modulus * scene.flagellum.radius ** 4
+
+
+def force_scale(scene) -> float:
+    """EI / L^2 (N): the flagellum's bending force, the unit of numerics.force_tol."""
+    return bending_stiffness(scene) / scene.flagellum.length ** 2
+
+
+def relaxation_time(scene) -> float:
+    """Elasto-viscous time eta_p L^4 / EI (s): omega_bar = omega * this."""
+    return rft_coefficients(scene)[1] * scene.flagellum.length ** 4 / bending_stiffness(scene)
+
+
+def normalise_omega(scene, omega: float) -> float:
+    """omega_bar = omega eta_p L^4 / EI (dimensionless)."""
+    return omega * relaxation_time(scene)
+
+
+def normalise_speed(scene, v: float) -> float:
+    """v_bar = v eta_p L^3 / EI (dimensionless)."""
+    return v * rft_coefficients(scene)[1] * scene.flagellum.length ** 3 / bending_stiffness(scene)
 
 
 def slenderness_problem(scene) -> str | None:

@@ -18,7 +18,8 @@ from .assembly import SparsePattern
 from .effects import EFFECT_TYPES, Driver, Effect, StepContext
 from .elastic import ElasticModel
 from .frames import EdgeFrames
-from .network import NEWTON_ROUNDOFFS, RodNetwork, build_network
+from .medium import force_scale
+from .network import NEWTON_ROUNDOFFS, RodNetwork, build_network, flagellum_edge_count
 
 
 @dataclass
@@ -91,8 +92,8 @@ class RobotModel:
         self.prescribed_dofs = np.unique(np.concatenate(fixed)) if fixed else np.zeros(0, np.int64)
         # residual scaling: torques on twist DOFs are divided by a length to compare with forces
         fl = scene.flagellum
-        self.length_scale = fl.length / max(1, round(fl.length / fl.edge_length))
-        self.force_scale = scene.force_scale
+        self.length_scale = fl.length / flagellum_edge_count(fl.length, fl.edge_length)
+        self.force_scale = force_scale(scene)
         self.scale = np.ones(self.ndof)
         self.scale[3 * self.net.n_nodes:] = 1.0 / self.length_scale
         # A residual cannot be resolved below the round-off of the stiffest spring (RodNetwork.residual_roundoff).
@@ -145,8 +146,8 @@ class RobotModel:
         h = self.net.motor_hinge
         if h < 0:
             return 0.0
-        _, _, tau = el.hinge_strains(q, el.trial_frames(q, frames))
-        return float(-el.k_twist[h] * (tau[h] - el.tau_bar[h] - drive_angle))
+        # the shaft's reaction to the motor hinge's twisting moment, as the springs compute it
+        return float(-el.hinge_moments(q, el.trial_frames(q, frames), h, drive_angle)[h, 2])
 
     def medium_force(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Total RFT force (N) and torque about the origin (N m) on the flagella at node positions ``x`` (N, 3)

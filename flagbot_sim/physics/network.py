@@ -135,6 +135,8 @@ class _Builder:
 
 
 def flagellum_edge_count(length: float, edge_length: float) -> int:
+    """Edges of a flagellum of ``length`` whose target edge length is ``edge_length``: the nearest whole number,
+    at least one (the edges are then L / count long)."""
     return max(1, int(round(length / edge_length)))
 
 

@@ -35,7 +35,7 @@ import scipy.sparse.linalg as spla
 
 from .effects import StepContext
 from .frames import EdgeFrames
-from .medium import coefficients_report, rft_coefficients
+from .medium import coefficients_report, head_torque_coefficient, rft_coefficients
 from .model import RobotModel, State
 from .network import helix_angle
 from .observe import efficiency
@@ -367,7 +367,7 @@ class SteadySolver:
         q = self.net.initial_q()
         if self.clamped:
             return q, omega_T, 0.0
-        c_h = sc.head_torque_coefficient if "head_torque" in sc.effects else 0.0
+        c_h = head_torque_coefficient(sc) if "head_torque" in sc.effects else 0.0
         th = helix_angle(sc.R_d, sc.flagellum.helix_pitch)
         eta_t, eta_p = rft_coefficients(sc)
         drag = eta_t * math.sin(th) ** 2 + eta_p * math.cos(th) ** 2

@@ -99,7 +99,7 @@ def _warm_bend_twist() -> None:
     for J in (np.empty(0), np.zeros(1)):
         _bend_twist(x, theta, t, t, length, d1, d2, rt, net.hinge_nodes, net.hinge_edges, net.hinge_sign, beta,
                     kappa_bar, tau_bar, k_bend, k_twist, hinge, slots, int(net.motor_hinge), 0.0, np.empty((H, 6)),
-                    np.zeros(net.ndof), J, len(J) > 0)
+                    np.empty((H, 3)), np.zeros(net.ndof), J, len(J) > 0)
 
 
 def _warm_time_stepping() -> None:

@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import solve_bvp
 
+from ..physics.medium import bending_stiffness, rft_coefficients
+
 #: default solve_bvp relative residual tolerance
 DEFAULT_TOL = 1.0e-8
 #: initial number of mesh nodes of every solve
@@ -351,7 +353,7 @@ def from_scene(scene, omega: float | None = None, *, inertia: bool | None = None
     if inertia is None:
         inertia = "inertia" in scene.effects
     rho_A = fl.density * math.pi * fl.radius ** 2 if inertia else 0.0
-    return solve_clamped_rod(fl.length, scene.R_d, scene.EI, scene.eta_t, scene.eta_p,
+    return solve_clamped_rod(fl.length, scene.R_d, bending_stiffness(scene), *rft_coefficients(scene),
                              scene.omega_T if omega is None else float(omega), rho_A=rho_A, **kwargs)
 
 

@@ -20,7 +20,7 @@ from rclpy.qos import QoSProfile
 from std_msgs.msg import Float64
 
 from ..motor_profile import ProfileError, parse
-from ..scene import RPM
+from ..units import RPM
 from .. import topics as names
 from .bag_args import add_profile_arguments, script_parser
 from .runtime import RosArgsError, run_node, user_args

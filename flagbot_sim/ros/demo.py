@@ -32,7 +32,7 @@ from pathlib import Path
 from .. import topics as names
 from ..cliutil import cpu_seconds, finite_text
 from ..progress import ProgressBar, StatusLine, format_duration
-from ..scene import RPM
+from ..units import RPM
 
 #: s a node may take to become ready before the liveness rule can fail it (``--start-timeout``): generous, since a
 #: first start on a loaded 2-core machine (imports, DDS, a cold kernel compile) has been seen to take minutes

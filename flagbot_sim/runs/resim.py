@@ -39,8 +39,8 @@ import numpy as np
 
 from ..bag import BagReader, find_topic, header_seconds
 from ..physics import Simulation, StepFailed
-from ..topics import HEAD_POSE, JOINT_STATES, RESETS
-from ..scene import Scene, SceneError, node_overrides, scene_from_dict
+from ..topics import HEAD_POSE, JOINT_STATES, RESETS, node_overrides
+from ..scene import Scene, SceneError, scene_from_dict
 
 #: largest head position difference (m) still counted as the same motion: Newton's tolerance, see above
 POSITION_TOLERANCE = 1e-8

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..bag import BagError, BagReader, SimTimeMap, find_topic, namespace_of
-from ..scene import RPM
+from ..units import RPM
 from ..topics import CLOCK, CMD_OMEGA, JOINT_STATES, OMEGA_H, OMEGA_T, SPEED  # plain names, no ROS import
 
 

@@ -19,6 +19,7 @@ import time
 import traceback
 from dataclasses import asdict, dataclass
 
+from ..physics.medium import head_torque_coefficient, normalise_omega, normalise_speed
 from ..scene import Scene, scene_from_dict
 
 #: "der" then beam.balance.REGIMES in its order (tests/test_sweep.py checks it). Written out rather than imported:
@@ -100,8 +101,8 @@ def run_der_steady(scene: Scene) -> dict:
     omega_T = scene.omega_T
     return {"framework": "der", "error": "", "hit_cap": False, "converged": True, "method": "steady",
             "stable": stable, "residual": sol.residual, "omega_h": s["omega_h"], "omega_t": s["omega_t"],
-            "v": s["v"], "omega_T_bar": scene.normalise_omega(omega_T),
-            "omega_h_bar": scene.normalise_omega(s["omega_h"]), "v_bar": scene.normalise_speed(s["v"]),
+            "v": s["v"], "omega_T_bar": normalise_omega(scene, omega_T),
+            "omega_h_bar": normalise_omega(scene, s["omega_h"]), "v_bar": normalise_speed(scene, s["v"]),
             "w_tip_over_L": math.nan, "motor_torque": s["motor_torque"], "power": s["power"],
             "cost_of_transport": _nan(s["cost_of_transport"]), "steps": sol.iterations, "sim_time": math.nan,
             "change_omega_h": math.nan, "change_v": math.nan, "wall_seconds": time.perf_counter() - w0}
@@ -132,8 +133,8 @@ def run_der_time(scene: Scene, settings: SteadySettings) -> dict:
     else:
         omega_h, omega_t, v = rates["omega_h"], rates["omega_t"], rates["v"]
     eff = sim.summary()
-    out.update(omega_h=omega_h, omega_t=omega_t, v=v, omega_T_bar=scene.normalise_omega(omega_T),
-               omega_h_bar=scene.normalise_omega(omega_h), v_bar=scene.normalise_speed(v),
+    out.update(omega_h=omega_h, omega_t=omega_t, v=v, omega_T_bar=normalise_omega(scene, omega_T),
+               omega_h_bar=normalise_omega(scene, omega_h), v_bar=normalise_speed(scene, v),
                w_tip_over_L=math.nan, motor_torque=eff["motor_torque"], power=eff["power"],
                cost_of_transport=_nan(eff["cost_of_transport"]), steps=sim.steps, sim_time=sim.time,
                change_omega_h=float(changes[0]) if len(changes) else math.nan,
@@ -162,7 +163,7 @@ def run_beam(scene: Scene, regime: str) -> dict:
 def _beam_efficiency(scene: Scene, omega_h: float, v: float) -> dict:
     from ..physics.network import build_network
     from ..physics.observe import efficiency
-    torque = scene.head_torque_coefficient * omega_h
+    torque = head_torque_coefficient(scene) * omega_h
     if not math.isfinite(torque):
         return {"motor_torque": math.nan, "power": math.nan, "cost_of_transport": math.nan}
     eff = efficiency(torque, scene.omega_T, v, float(build_network(scene).node_mass.sum()))
@@ -187,7 +188,7 @@ def run_point(task: dict) -> dict:
             nan = math.nan
             row = {"framework": fw, "omega_h": nan, "omega_t": nan, "v": nan, "motor_torque": nan, "power": nan,
                    "cost_of_transport": nan, "method": "", "stable": "", "residual": nan,
-                   "omega_T_bar": scene.normalise_omega(scene.omega_T), "omega_h_bar": nan, "v_bar": nan,
+                   "omega_T_bar": normalise_omega(scene, scene.omega_T), "omega_h_bar": nan, "v_bar": nan,
                    "w_tip_over_L": nan, "steps": 0, "sim_time": nan, "change_omega_h": nan, "change_v": nan,
                    "converged": False, "hit_cap": False, "wall_seconds": nan,
                    "error": f"{type(exc).__name__}: {exc} "

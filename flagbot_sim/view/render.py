@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import RPM
+from ..units import RPM
 from .geometry import RobotGeometry
 
 #: what each view's screen axes are in the world frame: (right, up), and the viewing direction (depth)
