@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from flagbot_sim.physics import Simulation
+from flagbot_sim.physics.medium import head_torque_coefficient, rft_coefficients
 from flagbot_sim.physics.model import RobotModel
-from flagbot_sim.physics.steady import SHIFT_FLOOR, SteadyFailed, SteadySolver, summary
+from flagbot_sim.physics.steady import SHIFT_FLOOR, ClampedFlagellum, SteadyFailed, SteadySolver, summary
 from flagbot_sim.scene import load_scene
 
 from cli_helpers import flagbot
@@ -29,8 +30,7 @@ def bordered_point(scene, overrides, seed=0):
     rng = np.random.default_rng(seed)
     q = q + 1e-4 * rng.standard_normal(len(q))           # off the equilibrium, nothing symmetric
     committed = m.elastic.frames0.copy()
-    if S.clamped:
-        S._set_clamp(q, committed)
+    S.problem.prepare(q, committed)
     return sc, m, S, q, wt, 2e-5, committed
 
 
@@ -43,25 +43,25 @@ def test_steady_jacobian_matches_finite_differences(scene, overrides):
     ndof = m.ndof
 
     def F(z):
-        w, u = (z[ndof], z[ndof + 1]) if not S.clamped else (wt, 0.0)
+        w, u = S.problem.rates(z[ndof:], sc.omega_T)
         r, _, _ = S.residual(z[:ndof], c, sc.omega_T, w, u)
-        return r if S.clamped else np.concatenate([r, z[:ndof][S.gauge]])
+        return np.concatenate([r, z[:ndof][S.gauge]])
 
-    z = q if S.clamped else np.concatenate([q, [wt, U]])
+    z = np.concatenate([q, S.problem.pack(wt, U)])
+    assert len(z) == ndof + len(S.gauge) == A.shape[0]
     # omega_t and U in units where a step of 1e-7 is a small relative change
     A_fd = fd_jacobian(F, z, 1e-7)
     free = np.ones(len(z), bool)
     free[S.fixed] = False
     A = A.toarray()
     assert rel_err(A[np.ix_(free, free)], A_fd[np.ix_(free, free)]) < 1e-6
-    if not S.clamped:
-        # the columns of the rigid-motion unknowns, alone: R is quadratic in omega_t and linear in U, so central
-        # differences are exact for any step, and a larger one keeps round-off out of these small entries
-        for j in (ndof, ndof + 1):
-            e = np.zeros(len(z))
-            e[j] = 1e-3
-            col = (F(z + e) - F(z - e)) / 2e-3
-            assert rel_err(A[:, j], col) < 1e-8, j
+    # the columns of the rigid-motion unknowns (free robot), alone: R is quadratic in omega_t and linear in U, so
+    # central differences are exact for any step, and a larger one keeps round-off out of these small entries
+    for j in range(ndof, len(z)):
+        e = np.zeros(len(z))
+        e[j] = 1e-3
+        col = (F(z + e) - F(z - e)) / 2e-3
+        assert rel_err(A[:, j], col) < 1e-8, j
 
 
 @pytest.fixture(scope="module")
@@ -191,7 +191,7 @@ def test_stability_finds_the_slowest_mode_of_the_whole_spectrum(scene, overrides
     double = (np.abs(inside.real) < 1e-4 * omega_t) & (np.abs(np.abs(inside.imag) - omega_t) < 1e-4 * omega_t)
     tol = np.where(double, 1e-4, 1e-6)
     assert np.all([np.min(np.abs(found - m)) < t * max(1.0, abs(m)) for m, t in zip(inside, tol)])
-    if S.clamped:
+    if isinstance(S.problem, ClampedFlagellum):
         assert st.neutral == 0 and not st.stable and st.rate == pytest.approx(inside.real.max(), rel=1e-6)
         assert st.rate > 10.0                                        # [41 1/s at 227 rad/s]
     else:
@@ -249,3 +249,21 @@ def test_flagbot_steady_as_users_run_it():
                   "--omega-rpm", "10000", "--no-stability")
     assert bad.returncode == 1 and "Traceback" not in bad.stderr + bad.stdout
     assert "NO EQUILIBRIUM" in bad.stdout and "stalled at omega_T" in bad.stdout
+
+
+def test_the_first_guess_balances_the_effects_spin_drag():
+    """The straight robot's first guess asks the effects for their spin drag (the head's Stokes torque, the
+    flagella's RFT n eta_p L R_d^2) and balances it: omega_h c_h = omega_t c_t; without the head torque the head
+    takes every turn (nothing resists it), without any drag the turns are split evenly."""
+    sc = load_scene("design1", ["robot.n_flagella=3"])
+    m = RobotModel(sc)
+    c_h, c_t = m.spin_drag()
+    eta_p = rft_coefficients(sc)[1]
+    assert c_h == pytest.approx(head_torque_coefficient(sc), rel=1e-15)
+    assert c_t == pytest.approx(3 * eta_p * sc.flagellum.length * sc.R_d ** 2, rel=1e-15)
+    _, omega_t, U = SteadySolver(m).initial_guess(sc.omega_T)
+    assert (sc.omega_T - omega_t) * c_h == pytest.approx(omega_t * c_t, rel=1e-12) and 0 < omega_t < sc.omega_T
+    assert U == 0.0
+    for effects, expected in ((["rft", "head_drag", "motor"], 0.0), (["head_drag", "motor"], 0.5 * sc.omega_T)):
+        m = RobotModel(sc.with_overrides({"scene.effects": effects}))
+        assert SteadySolver(m).initial_guess(sc.omega_T)[1] == pytest.approx(expected, rel=1e-15, abs=1e-300)

@@ -16,6 +16,8 @@ The protocol (every hook has a default here; dismech-rods' base_force has the sa
 * ``add_jacobian(ctx, J)``: subtract dF/dq from the CSC data array J, on its slots.
 * ``prescribed_dofs`` and ``prescribed_values(state, angle)``: DOFs whose values the effect imposes (a clamp)
   and their values at the end of a trial step; empty for a force.
+* ``spin_drag(scene)``: the torque about the axis per spin rate it puts on the head and on the flagella of the
+  straight robot turning rigidly, (0, 0) for most; the steady solver's first guess balances their sums.
 
 Effects keep no state that changes during a run: what changes lives in the :class:`~.model.State` (the drive
 angle) or in the step context, so a rejected trial step leaves nothing to undo.
@@ -34,7 +36,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from .medium import head_drag_coefficient, head_torque_coefficient, rft_coefficients
-from .network import RodNetwork
+from .network import RodNetwork, helix_angle
 
 if TYPE_CHECKING:
     from .frames import TrialFrames
@@ -94,6 +96,11 @@ class Effect:
     def prescribed_values(self, state, angle: float) -> np.ndarray:
         """Values of ``prescribed_dofs`` for a step from the committed ``state`` to drive angle ``angle``."""
         return np.zeros(0)
+
+    def spin_drag(self, scene) -> tuple[float, float]:
+        """(on the head, on the flagella): the resisting torque about the axis per spin rate (N m s) of the straight
+        robot turning rigidly (the head at its spin rate, the flagella at theirs)."""
+        return 0.0, 0.0
 
 
 class Driver(Effect):
@@ -222,6 +229,13 @@ class RFTDrag(Effect):
     def from_scene(cls, scene, net, elastic):
         return cls(net, *rft_coefficients(scene))
 
+    def spin_drag(self, scene):
+        """n rigid flagella on a cylinder of radius R_d, moving at omega R_d along it: the component across their
+        tangent (helix angle theta; 0 for straight ones) and along it give n L R_d^2 (eta_t sin^2 + eta_p cos^2)."""
+        th = helix_angle(scene.R_d, scene.flagellum.helix_pitch)
+        drag = self.eta_t * math.sin(th) ** 2 + self.eta_p * math.cos(th) ** 2
+        return 0.0, scene.robot.n_flagella * drag * scene.flagellum.length * scene.R_d ** 2
+
     def blocks(self):
         return [(self.dof_k, self.dof_k), (self.dof_k, self.dof_a), (self.dof_k, self.dof_b)]
 
@@ -306,6 +320,9 @@ class HeadTorque(Effect):
     @classmethod
     def from_scene(cls, scene, net, elastic):
         return cls(net, head_torque_coefficient(scene))
+
+    def spin_drag(self, scene):
+        return self.c, 0.0
 
     def blocks(self):
         th = np.array([[self.dof]])

@@ -119,6 +119,16 @@ class RobotModel:
     def effect_names(self) -> list[str]:
         return [e.name for e in self.effects]
 
+    def spin_drag(self) -> tuple[float, float]:
+        """(on the head, on the flagella): the effects' resisting torques about the axis per spin rate (N m s) of
+        the straight robot turning rigidly (:meth:`Effect.spin_drag`)."""
+        head = flagella = 0.0
+        for e in self.effects:
+            h, f = e.spin_drag(self.scene)
+            head += h
+            flagella += f
+        return head, flagella
+
     # ------------------------------------------------------------------ state
     def initial_state(self) -> State:
         q = self.net.initial_q()

@@ -106,6 +106,22 @@ def efficiency(torque: float, omega_T: float, v: float, mass: float) -> dict:
     return {"motor_torque": torque, "power": power, "cost_of_transport": cot}
 
 
+def summary_fields(scene, mass: float, rates: dict, run: dict, *, motor_torque: float | None = None,
+            clamp: tuple | None = None) -> dict:
+    """The one schema of ``flagbot run --json`` and ``flagbot steady --json``: the scene's name and n, ``rates``
+    (omega_T, omega_h, omega_t, v, steady), ``run`` (how they were obtained), then for a clamped flagellum
+    ``clamp`` = (F, T, tip), the medium's force and torque on it and its tip in the clamp's frame, whose torque is
+    the clamp's (-T_x), otherwise the ``motor_torque``; and :func:`efficiency` of that torque (robot mass
+    ``mass``)."""
+    out = {"scene": scene.scene.name, "n_flagella": scene.robot.n_flagella, **rates, **run}
+    if clamp is not None:
+        F, T, tip = clamp
+        out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in tip])
+        motor_torque = -float(T[0])          # what the clamp applies against the medium's torque
+    out.update(efficiency(motor_torque, rates["omega_T"], rates["v"], mass))
+    return out
+
+
 class Observer:
     """Accumulates spin angles step by step; answers instantaneous and windowed rates over a bounded history."""
 

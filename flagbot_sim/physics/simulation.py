@@ -11,7 +11,7 @@ import numpy as np
 from . import warmup
 from .medium import coefficients_report
 from .model import RobotModel
-from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, efficiency
+from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, summary_fields
 from .stepper import Stepper, StepStats
 
 
@@ -260,14 +260,9 @@ class Simulation:
         """Steady-state outputs and run statistics (SI units)."""
         ss = self.steady_state()
         det = self.steady_detector
-        out = {
-            "scene": self.scene.scene.name,
-            "n_flagella": self.scene.robot.n_flagella,
-            "omega_T": self.omega_T,
-            "omega_h": ss["omega_h"],
-            "omega_t": ss["omega_t"],
-            "v": ss["v"],
-            "steady": ss["steady"],
+        rates = {"omega_T": self.omega_T, "omega_h": ss["omega_h"], "omega_t": ss["omega_t"], "v": ss["v"],
+                 "steady": ss["steady"]}
+        run = {
             "steady_change": det.change,
             "steady_rtol": det.rtol,
             "window": ss["window"],
@@ -281,11 +276,8 @@ class Simulation:
             "kernels": warmup.kernels_mode(),
             "rft_coefficients": coefficients_report(self.scene),
         }
+        mass = float(self.model.net.node_mass.sum())
         if self.scene.clamped:
-            F, T = self.medium_force_on_flagella()
-            out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in self.clamp_frame_tip()])
-            torque = -float(T[0])             # what the clamp applies against the medium's torque
-        else:
-            torque = self.motor_torque()
-        out.update(efficiency(torque, self.omega_T, out["v"], float(self.model.net.node_mass.sum())))
-        return out
+            return summary_fields(self.scene, mass, rates, run, clamp=(*self.medium_force_on_flagella(),
+                                                                self.clamp_frame_tip()))
+        return summary_fields(self.scene, mass, rates, run, motor_torque=self.motor_torque())

@@ -35,10 +35,9 @@ import scipy.sparse.linalg as spla
 
 from .effects import StepContext
 from .frames import EdgeFrames
-from .medium import coefficients_report, head_torque_coefficient, rft_coefficients
+from .medium import coefficients_report
 from .model import RobotModel, State
-from .network import helix_angle
-from .observe import efficiency
+from .observe import summary_fields
 from .warmup import kernels_mode
 
 
@@ -178,14 +177,140 @@ def conjugate_pairs(mu: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
     paired = [abs(m.imag) <= rtol * abs(m) or np.min(np.abs(mu - np.conj(m))) <= rtol * max(1.0, abs(m)) for m in mu]
     return mu[np.array(paired)]
 
+class FreeRobot:
+    """The swimming robot's problem: unknowns (q, omega_t, U). The two gauge conditions (the head centre's x, the
+    first plate rim node's z) fix translation along and rotation about the axis; the two equations they free, the
+    axial force and torque balance, determine U and omega_t."""
+    #: modes of the symmetry at mu = +-i omega_t: a sideways shift and a tilt of the whole robot, as pairs
+    neutral_modes = 4
+
+    def __init__(self, model: RobotModel):
+        self.model = model
+        net = model.net
+        rim = net.edges[net.plate_edges[0], 1]
+        self.gauge = np.array([3 * net.head_nodes[1], 3 * rim + 2])
+
+    def pack(self, omega_t: float, U: float) -> np.ndarray:
+        """The unknowns beyond q."""
+        return np.array([omega_t, U])
+
+    def rates(self, p: np.ndarray, omega_T: float) -> tuple[float, float]:
+        """(omega_t, U) of the unknowns ``p`` beyond q."""
+        return p[0], p[1]
+
+    def first_guess(self, omega_T: float) -> tuple[float, float]:
+        """(omega_t, U) of the undeformed robot turning as a rigid body, from the torque balance of the effects'
+        spin drag: omega_h c_h = c_t omega_t (c_t = n L R_d^2 (eta_t sin^2 theta + eta_p cos^2 theta) of rigid
+        flagella, theta the helix angle), omega_h + omega_t = omega_T."""
+        c_h, c_t = self.model.spin_drag()
+        return (omega_T * c_h / (c_h + c_t) if c_h + c_t > 0 else 0.5 * omega_T), 0.0
+
+    def continued(self, p: np.ndarray, omega_T: float, from_omega_T: float, ratio: float) -> np.ndarray:
+        """The guess at ``omega_T`` from the solution ``p`` at ``from_omega_T`` (or, from none, omega_t = ratio
+        omega_T): omega_t in proportion, U as it was."""
+        omega_t = p[0] * omega_T / from_omega_T if from_omega_T else ratio * omega_T
+        return np.array([omega_t, p[1]])
+
+    def prepare(self, q: np.ndarray, committed: EdgeFrames) -> None:
+        """Nothing is prescribed."""
+
+    def border_columns(self, ndof: int, Ka, dv_dw: np.ndarray, dv_dU: np.ndarray) -> tuple:
+        """The damping's columns of the rates omega_t, U: a change of either accelerates every node."""
+        return (ndof, Ka @ dv_dw), (ndof + 1, Ka @ dv_dU)
+
+    def shift(self, omega_t: float) -> float:
+        """Where the modes are sought (mu = shift + 1/nu): 0, unless the neutral modes at +-i omega_t are so near 0
+        (a robot nearly or wholly at rest) that the steady Jacobian itself is singular."""
+        return 0.0 if abs(omega_t) >= SHIFT_FLOOR else -SHIFT_FLOOR
+
+    def neutral(self, mu: np.ndarray, omega_t: float, sigma: float) -> np.ndarray:
+        """Which modes are the symmetry's: mu = +-i omega_t to NEUTRAL_RTOL."""
+        scale = max(abs(omega_t), SHIFT_FLOOR if sigma else 1e-12)
+        return (np.abs(mu.real) <= NEUTRAL_RTOL * scale) & (np.abs(np.abs(mu.imag) - abs(omega_t))
+                                                            <= NEUTRAL_RTOL * scale)
+
+    def observations(self, sol: "SteadySolution") -> dict:
+        """What the summary reports of the equilibrium beyond its rates: the motor's torque (its twist is in the
+        frames at drive angle 0)."""
+        return {"motor_torque": self.model.motor_torque(sol.q, sol.frames, 0.0)}
+
+
+class ClampedFlagellum:
+    """The clamped flagellum's problem: the clamp holds the plate, turning at omega_T, so the unknowns are the
+    shape q alone (no gauge, no rates)."""
+    neutral_modes = 0
+    gauge = np.zeros(0, np.int64)
+
+    def __init__(self, model: RobotModel):
+        self.model = model
+
+    def pack(self, omega_t: float, U: float) -> np.ndarray:
+        return np.zeros(0)
+
+    def rates(self, p: np.ndarray, omega_T: float) -> tuple[float, float]:
+        """The flagellum turns with the clamp and does not translate."""
+        return omega_T, 0.0
+
+    def first_guess(self, omega_T: float) -> tuple[float, float]:
+        return omega_T, 0.0
+
+    def continued(self, p: np.ndarray, omega_T: float, from_omega_T: float, ratio: float) -> np.ndarray:
+        return p
+
+    def prepare(self, q: np.ndarray, committed: EdgeFrames) -> None:
+        """Put the clamped DOFs at the clamp's configuration at drive angle 0."""
+        state = State(0.0, q, np.zeros_like(q), committed, 0.0)
+        self.model.prescribe(q, state, 0.0)
+
+    def border_columns(self, ndof: int, Ka, dv_dw: np.ndarray, dv_dU: np.ndarray) -> tuple:
+        return ()
+
+    def shift(self, omega_t: float) -> float:
+        return 0.0
+
+    def neutral(self, mu: np.ndarray, omega_t: float, sigma: float) -> np.ndarray:
+        return np.zeros(len(mu), bool)
+
+    def observations(self, sol: "SteadySolution") -> dict:
+        """The medium's force and torque on the flagellum (the clamp's torque is -T_x) and its tip, at drive angle
+        0 (where the clamp's frame is the lab's)."""
+        model = self.model
+        N = model.net.n_nodes
+        x = sol.q[: 3 * N].reshape(N, 3)
+        F, T = model.medium_force(x, sol.velocity)
+        return {"clamp": (F, T, x[model.net.flagella_nodes[0][-1]])}
+
+
+def steady_problem(model: RobotModel) -> FreeRobot | ClampedFlagellum:
+    """The steady problem of a model's scene: the clamped flagellum when a clamp holds it, else the free robot."""
+    return ClampedFlagellum(model) if model.scene.clamped else FreeRobot(model)
+
+
+@dataclass
+class _Linear:
+    """What the steady Jacobian is assembled from at one (q, omega_t, U)."""
+    r: np.ndarray                # residual
+    frames: EdgeFrames           # trial frames of q
+    fields: tuple                # (v, a, dv/domega_t, da/domega_t, dv/dU) of the rigid motion
+    J00: np.ndarray              # dR/dq at fixed v, a (springs and effects), CSC data on the model's pattern
+    Kv: np.ndarray               # dR/dv, the effects' Jacobian with dv/dq = 1 less the one at dv/dq = 0
+    Ka: np.ndarray               # dR/da, likewise with da/dq = 1
+    dv_vals: np.ndarray          # values of dv/dq and da/dq of the rigid-motion field
+    da_vals: np.ndarray
+
+
 class SteadySolver:
-    """Relative equilibria of one scene (its RobotModel): ``solve(omega_T)``."""
+    """Relative equilibria of one scene (its RobotModel): ``solve(omega_T)``.
+
+    One damped Newton driver and continuation in omega_T; what differs between the free robot and the clamped
+    flagellum (unknowns, gauge, first guess, neutral modes, what is reported) is its problem, :class:`FreeRobot`
+    or :class:`ClampedFlagellum` (``self.problem``)."""
 
     def __init__(self, model: RobotModel, tol: float | None = None, max_iterations: int = 30):
         self.model = model
         net = model.net
         self.net = net
-        self.clamped = model.scene.clamped
+        self.problem = steady_problem(model)
         N = net.n_nodes
         self.N = N
         self.tol = tol if tol is not None else model.force_tol
@@ -198,18 +323,13 @@ class SteadySolver:
             self.head_node[net.head_nodes[:2]] = True
             self.head_edge[net.head_edge] = True
         self.fixed = model.prescribed_dofs
-        if not self.clamped:
-            # gauge: the head centre's x and the first plate rim node's z
-            rim = net.edges[net.plate_edges[0], 1]
-            self.gauge = np.array([3 * net.head_nodes[1], 3 * rim + 2])
-        else:
-            self.gauge = np.zeros(0, np.int64)
+        self.gauge = self.problem.gauge
         e = net.edges
         self._tail, self._head = e[:, 0], e[:, 1]
         self._is_fixed = np.zeros(model.ndof, bool)
         self._is_fixed[self.fixed] = True
         self._pattern = _BorderedPattern(model.pattern, N, net.n_edges, self._head, self._tail, self.fixed,
-                                         self.gauge, bordered=not self.clamped)
+                                         self.gauge, bordered=len(self.gauge) > 0)
         self._ex = np.eye(3)[0]
         self._dv_dU = np.zeros(model.ndof)
         self._dv_dU[0: 3 * N: 3] = 1.0
@@ -268,12 +388,14 @@ class SteadySolver:
         r[self.fixed] = 0.0
         return r, fr, v
 
-    def system(self, q, committed: EdgeFrames, omega_T, omega_t, U):
-        """Residual and Jacobian of the bordered system in the unknowns (q, omega_t, U) (free robot) or q."""
+    def _linear(self, q, committed: EdgeFrames, omega_T, omega_t, U) -> _Linear:
+        """The residual and the parts of its Jacobian at (q, omega_t, U). The effects' Jacobians evaluated with
+        the integrator coefficients (dv/dq, da/dq) = (0, 0), (1, 0), (0, 1) separate the explicit position
+        dependence from dR/dv and dR/da (the springs depend on neither)."""
         model = self.model
         fr = model.elastic.trial_frames(q, committed)
-        v, a, dv_dw, da_dw, dv_dU = self.fields(q, fr.t, omega_T, omega_t, U)
-        ctx = self._context(q, fr, v, a, 0.0, 0.0)
+        fields = self.fields(q, fr.t, omega_T, omega_t, U)
+        ctx = self._context(q, fr, fields[0], fields[1], 0.0, 0.0)
         r, J00 = model.residual_and_jacobian(ctx)
         E00 = model.jacobian(ctx, springs=False)                     # the effects' part of J00
         ctx.dv_dq, ctx.da_dq = 1.0, 0.0
@@ -282,8 +404,17 @@ class SteadySolver:
         Ka = model.jacobian(ctx, springs=False) - E00                # dR/da
         dv_vals, da_vals = self._velocity_derivatives(fr, omega_T, omega_t)
         r[self.fixed] = 0.0
-        A = self._pattern.assemble(J00, Kv, Ka, dv_vals, da_vals, dv_dw, da_dw, dv_dU)
-        return r, A, fr
+        return _Linear(r, fr, fields, J00, Kv, Ka, dv_vals, da_vals)
+
+    def _assemble(self, lin: _Linear) -> sp.csc_matrix:
+        _, _, dv_dw, da_dw, dv_dU = lin.fields
+        return self._pattern.assemble(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals, dv_dw, da_dw, dv_dU)
+
+    def system(self, q, committed: EdgeFrames, omega_T, omega_t, U):
+        """Residual and Jacobian of the bordered system in the problem's unknowns: (q, omega_t, U) (free robot) or
+        q (clamped flagellum)."""
+        lin = self._linear(q, committed, omega_T, omega_t, U)
+        return lin.r, self._assemble(lin), lin.frames
 
     # ---------------------------------------------------------------- Newton
     def _step_norm(self, dz: np.ndarray, omega_T: float) -> float:
@@ -308,6 +439,8 @@ class SteadySolver:
         which a full step along a turning flagellum raises by orders of magnitude for one iteration although the
         next removes them (pure Newton then converges quadratically)."""
         ndof = self.model.ndof
+        problem = self.problem
+        p = problem.pack(omega_t, U)                   # the unknowns beyond q
         r, fr, _ = self.residual(q, committed, omega_T, omega_t, U)
         rn = self._norm(r)
         lam = 1.0
@@ -331,21 +464,19 @@ class SteadySolver:
                     lu = spla.splu(A, permc_spec="COLAMD")
                 except RuntimeError as exc:
                     raise SteadyFailed(f"singular Jacobian at omega_T = {omega_T:.6g} rad/s: {exc}") from None
-                rhs = r if self.clamped else np.concatenate([r, g])
-                dz = -lu.solve(rhs)
+                dz = -lu.solve(np.concatenate([r, g]))
             if not np.all(np.isfinite(dz)):
                 raise SteadyFailed(f"non-finite Newton step at omega_T = {omega_T:.6g} rad/s")
             dn = self._step_norm(dz, omega_T)
             lam = min(1.0, 2.0 * lam)
             while True:
                 q_try = q + lam * dz[:ndof]
-                w_try = omega_t + (lam * dz[ndof] if not self.clamped else 0.0)
-                U_try = U + (lam * dz[ndof + 1] if not self.clamped else 0.0)
+                p_try = p + lam * dz[ndof:]
+                w_try, U_try = problem.rates(p_try, omega_T)
                 r_try, fr_try, _ = self.residual(q_try, committed, omega_T, w_try, U_try)
                 ok = np.all(np.isfinite(r_try))
                 if ok:
-                    rhs_try = r_try if self.clamped else np.concatenate([r_try, q_try[self.gauge] - q_gauge])
-                    bar = lu.solve(rhs_try)
+                    bar = lu.solve(np.concatenate([r_try, q_try[self.gauge] - q_gauge]))
                     dn_try = self._step_norm(bar, omega_T)
                     if dn_try <= (1.0 - 0.5 * lam) * dn or dn <= 1e-14:
                         if lam == 1.0 and dn_try <= 0.02 * dn:
@@ -355,25 +486,14 @@ class SteadySolver:
                 if lam < 1.0 / 1024.0:
                     raise SteadyFailed(f"the damped Newton iteration stalled at omega_T = {omega_T:.6g} rad/s "
                                        f"(residual {rn:.3g} N, tolerance {self.tol:.3g} N)")
-            q, omega_t, U, r, fr = q_try, w_try, U_try, r_try, fr_try
+            q, p, omega_t, U, r, fr = q_try, p_try, w_try, U_try, r_try, fr_try
         raise SteadyFailed(f"Newton did not converge in {self.max_iterations} iterations at omega_T = "
                            f"{omega_T:.6g} rad/s (residual {self._norm(r):.3g} N, tolerance {self.tol:.3g} N)")
 
     def initial_guess(self, omega_T: float):
-        """The undeformed robot turning as a rigid body, with the torque balance of its rigid flagella:
-        omega_h c_h = n L R_d^2 (eta_t sin^2 theta + eta_p cos^2 theta) omega_t, omega_h + omega_t = omega_T
-        (theta the helix angle; 0 for straight flagella)."""
-        sc = self.model.scene
-        q = self.net.initial_q()
-        if self.clamped:
-            return q, omega_T, 0.0
-        c_h = head_torque_coefficient(sc) if "head_torque" in sc.effects else 0.0
-        th = helix_angle(sc.R_d, sc.flagellum.helix_pitch)
-        eta_t, eta_p = rft_coefficients(sc)
-        drag = eta_t * math.sin(th) ** 2 + eta_p * math.cos(th) ** 2
-        c_t = sc.robot.n_flagella * drag * sc.flagellum.length * sc.R_d ** 2 if "rft" in sc.effects else 0.0
-        omega_t = omega_T * c_h / (c_h + c_t) if c_h + c_t > 0 else 0.5 * omega_T
-        return q, omega_t, 0.0
+        """(q, omega_t, U): the straight robot turning as a rigid body at the problem's first guess of its rates
+        (:meth:`FreeRobot.first_guess`)."""
+        return (self.net.initial_q(), *self.problem.first_guess(omega_T))
 
     def solve(self, omega_T: float, start: SteadySolution | None = None, min_fraction: float = 1e-3
               ) -> SteadySolution:
@@ -381,6 +501,7 @@ class SteadySolver:
         rest). Newton first tries the whole way; where it fails, the step in omega_T is halved (continuation),
         and steps grow again by doubling. Raises SteadyFailed with the reason when no equilibrium is found."""
         t0 = time.perf_counter()
+        problem = self.problem
         target = float(omega_T)
         if start is None:
             q, omega_t, U = self.initial_guess(target)
@@ -393,15 +514,13 @@ class SteadySolver:
                 start.omega_T
             ratio = omega_t / w_done if w_done else 0.5
             q_gauge = start.q[self.gauge]
-        if self.clamped:
-            self._set_clamp(q, committed)
+        problem.prepare(q, committed)
         path, iterations, rn = [], 0, 0.0
         w = target
         while True:
-            guess_w = omega_t * w / w_done if w_done else ratio * w
+            guess_w, guess_U = problem.rates(problem.continued(problem.pack(omega_t, U), w, w_done, ratio), w)
             try:
-                q1, omega_t1, U1, rn, its, fr = self.newton(q.copy(), committed, w, guess_w if not self.clamped
-                                                            else w, U, q_gauge)
+                q1, omega_t1, U1, rn, its, fr = self.newton(q.copy(), committed, w, guess_w, guess_U, q_gauge)
             except SteadyFailed as exc:
                 step = w - w_done
                 if abs(step) <= min_fraction * max(abs(target), 1e-12):
@@ -426,28 +545,22 @@ class SteadySolver:
 
     def linearization(self, sol: SteadySolution):
         """(A, D, Mm, omega_t) of the linearised dynamics A dz + D dz' + Mm dz'' = 0 about ``sol``, in the frame
-        that follows its rigid motion; z = (q, omega_t, U) for the free robot, q for the clamped flagellum.
+        that follows its rigid motion; z the problem's unknowns, (q, omega_t, U) for the free robot, q for the
+        clamped flagellum.
 
         With v = V(q) + z' and a = A_r(q) + C z' + z'' (the rigid-motion field V, its centripetal acceleration
         A_r, and C the Coriolis term 2 Omega e_x x on the nodes and the twist rates' d(Omega_e e_x.t)/dx x' on
         the edges): A is the steady Jacobian, D = dR/dv + dR/da C on the DOFs (with the border columns' rates:
         a turning rate or speed that changes accelerates every node), and Mm = dR/da, the masses."""
         model = self.model
-        q, fr = sol.q, sol.frames
-        omega_t, U = sol.omega_t, -sol.v
+        omega_t = sol.omega_t
         ndof = model.ndof
-        _, A, _ = self.system(q, fr, sol.omega_T, omega_t, U)
-        tf = model.elastic.trial_frames(q, fr)
-        v, a, dv_dw, _, dv_dU = self.fields(q, tf.t, sol.omega_T, omega_t, U)
-        ctx = self._context(q, tf, v, a, 0.0, 0.0)
-        E00 = model.jacobian(ctx, springs=False)
-        ctx.dv_dq = 1.0
-        Kv = model.pattern.matrix(model.jacobian(ctx, springs=False) - E00)
-        ctx.dv_dq, ctx.da_dq = 0.0, 1.0
-        Ka = model.pattern.matrix(model.jacobian(ctx, springs=False) - E00)
-        dv_vals, _ = self._velocity_derivatives(tf, sol.omega_T, omega_t)
+        lin = self._linear(sol.q, sol.frames, sol.omega_T, omega_t, -sol.v)
+        A = self._assemble(lin)
+        _, _, dv_dw, _, dv_dU = lin.fields
+        Kv, Ka = model.pattern.matrix(lin.Kv), model.pattern.matrix(lin.Ka)
         pat = self._pattern
-        coriolis = dv_vals.copy()
+        coriolis = lin.dv_vals.copy()
         coriolis[: 2 * self.N] *= 2.0                 # the node entries: 2 Omega e_x x; the edges' as they are
         C = sp.csc_matrix((coriolis, (pat.dv_rows, pat.dv_cols)), shape=(ndof, ndof))
         n = A.shape[0]
@@ -466,8 +579,7 @@ class SteadySolver:
             out.eliminate_zeros()              # the pattern's unused slots (no inertia effect: Mm = 0)
             return out
 
-        border = () if self.clamped else ((ndof, Ka @ dv_dw), (ndof + 1, Ka @ dv_dU))
-        D = bordered(Kv + Ka @ C, border)
+        D = bordered(Kv + Ka @ C, self.problem.border_columns(ndof, Ka, dv_dw, dv_dU))
         Mm = bordered(Ka)
         return A, D, Mm, omega_t
 
@@ -485,11 +597,11 @@ class SteadySolver:
         the same along any axis, from any point) appear in the turning frame as oscillations at exactly
         +-i omega_t. Inertia is included: the centripetal load reaches the drag at ~1800 rpm for design 2's
         flagellum, where the overdamped picture calls a folding equilibrium stable."""
+        problem = self.problem
         A, D, Mm, omega_t = self.linearization(sol)
         n = A.shape[0]
-        # shift-invert about sigma (mu = sigma + 1/theta): 0, unless the neutral modes at +-i omega_t are so
-        # near 0 (a robot nearly or wholly at rest) that A itself is singular
-        sigma = 0.0 if self.clamped or abs(omega_t) >= SHIFT_FLOOR else -SHIFT_FLOOR
+        # shift-invert about sigma (mu = sigma + 1/theta)
+        sigma = problem.shift(omega_t)
         P = A if sigma == 0.0 else (A + sigma * D + sigma ** 2 * Mm).tocsc()
         lu = spla.splu(P, permc_spec="COLAMD")
         if Mm.nnz:
@@ -500,7 +612,6 @@ class SteadySolver:
             op = spla.LinearOperator((2 * n, 2 * n), matvec=matvec, dtype=float)
         else:
             op = spla.LinearOperator((n, n), matvec=lambda z: -lu.solve(D @ z), dtype=float)
-        scale = max(abs(omega_t), SHIFT_FLOOR if sigma else 1e-12)
         k = min(k, op.shape[0] - 2)
         while True:
             try:
@@ -510,13 +621,9 @@ class SteadySolver:
             nu = nu[np.abs(nu) > 1e-300]
             mu = conjugate_pairs(sigma + 1.0 / nu)
             mu = mu[np.argsort(-mu.real)]
-            if self.clamped:
-                neutral = np.zeros(len(mu), bool)
-                break
-            neutral = (np.abs(mu.real) <= NEUTRAL_RTOL * scale) & \
-                      (np.abs(np.abs(mu.imag) - abs(omega_t)) <= NEUTRAL_RTOL * scale)
+            neutral = problem.neutral(mu, omega_t, sigma)
             # every mode with |mu| below the neutral ones' omega_t is examined: more modes until they are found
-            if neutral.sum() >= 4 or k >= min(MAX_MODES, op.shape[0] - 2):
+            if neutral.sum() >= problem.neutral_modes or k >= min(MAX_MODES, op.shape[0] - 2):
                 break
             k = min(2 * k, MAX_MODES, op.shape[0] - 2)
         rest = mu[~neutral]
@@ -527,31 +634,16 @@ class SteadySolver:
         return Stability(stable=not growing.any(), rate=rate, rates=[complex(m) for m in mu],
                          neutral=int(neutral.sum()))
 
-    def _set_clamp(self, q, committed):
-        """Put the clamped DOFs at the clamp's configuration at drive angle 0."""
-        state = State(0.0, q, np.zeros_like(q), committed, 0.0)
-        self.model.prescribe(q, state, 0.0)
-
 
 def summary(model: RobotModel, sol: SteadySolution) -> dict:
-    """The fields of ``flagbot run --json`` for the equilibrium, plus its residual and Newton iterations."""
-    sc = model.scene
-    out = {"scene": sc.scene.name, "n_flagella": sc.robot.n_flagella, "omega_T": sol.omega_T,
-           "omega_h": sol.omega_h if not sc.clamped else 0.0, "omega_t": sol.omega_t, "v": sol.v, "steady": True,
-           "method": "steady", "residual": sol.residual, "newton_iterations": sol.iterations,
+    """The fields of ``flagbot run --json`` for the equilibrium (one schema: :func:`.observe.summary_fields`),
+    plus its residual and Newton iterations."""
+    problem = steady_problem(model)
+    rates = {"omega_T": sol.omega_T, "omega_h": sol.omega_h, "omega_t": sol.omega_t, "v": sol.v, "steady": True}
+    run = {"method": "steady", "residual": sol.residual, "newton_iterations": sol.iterations,
            "continuation": list(sol.continuation), "wall_seconds": sol.wall_seconds,
            # run --json's time-stepping fields, for one schema: no steps, no simulated time, no window
            "steady_change": None, "steady_rtol": None, "window": None, "time": None, "steps": 0,
            "dt_reductions": 0, "real_time_factor": None, "kernels": kernels_mode(),
-           "rft_coefficients": coefficients_report(sc)}
-    if sc.clamped:
-        N = model.net.n_nodes
-        x = sol.q[: 3 * N].reshape(N, 3)
-        F, T = model.medium_force(x, sol.velocity)
-        tip = x[model.net.flagella_nodes[0][-1]]
-        out.update(Fx=float(F[0]), Tx=float(T[0]), tip=[float(v) for v in tip])
-        torque = -float(T[0])                 # what the clamp applies against the medium's torque
-    else:
-        torque = model.motor_torque(sol.q, sol.frames, 0.0)   # the motor's twist is in the frames at angle 0
-    out.update(efficiency(torque, sol.omega_T, out["v"], float(model.net.node_mass.sum())))
-    return out
+           "rft_coefficients": coefficients_report(model.scene)}
+    return summary_fields(model.scene, float(model.net.node_mass.sum()), rates, run, **problem.observations(sol))
