@@ -35,12 +35,14 @@ def moving_robot(scene="design1", extra=()):
 
 
 WITH_YIELD = f"scene.effects={ALL_FREE[:-1]},'granular_yield']"
+WITH_SPIN = f"scene.effects={ALL_FREE[:-1]},'spin_drag']"
 # the granular yield is nonlinear in the head velocity on the scale max(|v|, v_eps): the noisy point's head nodes
 # move at ~1e-3 m/s, so a step of 1e-9 m (1e-7 m/s) resolves it; at the default v_eps = 1e-7 m/s the law is
 # saturated (Coulomb, |F| = F_y), with v_eps = 1e-3 m/s it is in its regularised range
 EFFECT_CASES = [("inertia", (), 1e-7), ("rft", (), 1e-7), ("head_drag", (), 1e-7), ("head_torque", (), 1e-7),
                 ("gravity", (), 1e-7), ("granular_yield", (WITH_YIELD,), 1e-9),
-                ("granular_yield", (WITH_YIELD, "medium.yield_speed=1e-3"), 1e-9)]
+                ("granular_yield", (WITH_YIELD, "medium.yield_speed=1e-3"), 1e-9),
+                ("spin_drag", (WITH_SPIN,), 1e-7), ("spin_drag", (WITH_SPIN, "medium.spin_drag=granular"), 1e-7)]
 
 
 @pytest.mark.parametrize("name,extra,h", EFFECT_CASES, ids=[f"{c[0]}{'-' + c[1][-1] if len(c[1]) > 1 else ''}"
@@ -131,3 +133,24 @@ def test_an_effect_must_fill_the_blocks_it_declared():
     rft = m.effect("rft")
     with pytest.raises(ValueError, match="declared 3 Jacobian blocks, got 2"):
         rft.bind(rft.slots[:2])
+
+
+@pytest.mark.parametrize("model", ["viscous", "granular"])
+def test_spin_drag_resists_a_spinning_flagellum_with_its_stated_coefficient(model):
+    """The clamped flagellum at 0.5 rpm is nearly straight along the axis, so every edge spins at omega about its
+    own tangent: the spin drag adds -c L omega to the medium's axial torque (c = 4 pi mu r0^2, or the granular
+    analogue spin_traction eta_t r0^2) and leaves the axial force alone."""
+    from flagbot_sim.physics.effects import SpinDrag
+    from flagbot_sim.physics.steady import SteadySolver, summary
+    out = {}
+    for effects in ("['inertia','rft','clamp']", "['inertia','rft','clamp','spin_drag']"):
+        sc = load_scene("clamped_flagellum", ["motor.omega_rpm=0.5", f"scene.effects={effects}",
+                                              f"medium.spin_drag={model}", "medium.spin_traction=2.0"])
+        m = RobotModel(sc)
+        out[effects] = summary(m, SteadySolver(m).solve(sc.omega_T))
+    plain, spin = out.values()
+    r0, mu = sc.flagellum.radius, sc.medium.mu
+    c = 4 * np.pi * mu * r0 ** 2 if model == "viscous" else 2.0 * sc.eta_t * r0 ** 2
+    assert SpinDrag.coefficient(sc) == pytest.approx(c, rel=1e-14)
+    assert spin["Tx"] - plain["Tx"] == pytest.approx(-c * sc.flagellum.length * sc.omega_T, rel=1e-3)
+    assert spin["Fx"] == pytest.approx(plain["Fx"], rel=1e-3)

@@ -34,9 +34,16 @@ def bordered_point(scene, overrides, seed=0):
     return sc, m, S, q, wt, 2e-5, committed
 
 
+SPIN = "scene.effects=['inertia','rft','head_drag','head_torque','motor','spin_drag']"
+SPIN_CLAMPED = "scene.effects=['inertia','rft','clamp','spin_drag']"
+
+
 @pytest.mark.parametrize("scene,overrides", [("design1", ["flagellum.length=0.03", "robot.n_flagella=3"]),
                                              ("clamped_flagellum", ["flagellum.length=0.03",
-                                                                    "motor.omega_rpm=60"])])
+                                                                    "motor.omega_rpm=60"]),
+                                             ("design1", ["flagellum.length=0.03", SPIN]),
+                                             ("clamped_flagellum", ["flagellum.length=0.03", "motor.omega_rpm=60",
+                                                                    SPIN_CLAMPED])])
 def test_steady_jacobian_matches_finite_differences(scene, overrides):
     sc, m, S, q, wt, U, c = bordered_point(scene, overrides)
     _, A, _ = S.system(q, c, sc.omega_T, wt, U)
@@ -133,9 +140,10 @@ def _rigid(S, sol, rotation=None, shift=None):
     return z
 
 
-@pytest.mark.parametrize("scene,rpm,inertia", [("design1", 250, False), ("design2", 150, False),
-                                               ("design1", 250, True), ("design2", 150, True)])
-def test_the_linearisation_admits_the_tilted_robot(scene, rpm, inertia):
+@pytest.mark.parametrize("scene,rpm,inertia,spin", [("design1", 250, False, False), ("design2", 150, False, False),
+                                                    ("design1", 250, True, False), ("design2", 150, True, False),
+                                                    ("design2", 150, True, True)])
+def test_the_linearisation_admits_the_tilted_robot(scene, rpm, inertia, spin):
     """A tilted robot swims the same along its tilted axis: in the turning frame, the tilt about e_z turns at
     omega_t (into a tilt about e_y) and the robot drifts sideways at U times the tilt. That motion,
     z(t) = [n(t) x (x - c), t . n(t)] + U t R_x(-omega_t t) e_y with n(t) = R_x(-omega_t t) e_z, solves the
@@ -144,6 +152,8 @@ def test_the_linearisation_admits_the_tilted_robot(scene, rpm, inertia):
     (before the head torque's work on a moving tangent was counted, design 1 was called unstable above 117 rpm)."""
     effects = "['inertia','rft','head_drag','head_torque','motor']" if inertia else \
         "['rft','head_drag','head_torque','motor']"
+    if spin:         # the spin drag's torques about the flagella's turning tangents do work through the holonomy too
+        effects = effects[:-1] + ",'spin_drag']"
     sc = load_scene(scene, [f"motor.omega_rpm={rpm}", f"scene.effects={effects}"])
     S = SteadySolver(RobotModel(sc))
     sol = S.solve(sc.omega_T)

@@ -344,6 +344,84 @@ class HeadTorque(Effect):
                      np.zeros(len(ctx.q)), J, self.slots[1], self.slots[2], True)
 
 
+class SpinDrag(Effect):
+    """Resistance of the medium to each flagellum spinning about its own axis: T_e = -c l_e omega_e about the
+    tangent of every flagellum edge e (rest length l_e), omega_e the spin rate of its material frame.
+
+    c (N s, torque per length per rad/s) from ``medium.spin_drag``: 'viscous', c = 4 pi mu r0^2, the torque per
+    length on an infinite cylinder of radius r0 turning about its axis in Stokes flow (the flow u = Omega r0^2 / r
+    around it, wall shear stress 2 mu Omega); 'granular', c = k eta_t r0^2 (k = ``medium.spin_traction``), an
+    assumption: the grains resist the surface sliding round the axis at omega r0 with the traction that resists
+    the same surface sliding along it, eta_t v / (2 pi r0) per area. The paper's model has no such term (RFT acts
+    on the centreline only), so the effect is off unless a scene lists it.
+
+    With time-parallel transported reference frames omega_e is the twist DOF's rate d(theta_e)/dt, and, like the
+    head torque (:class:`HeadTorque`), a torque about a moving tangent also does work through the transport's
+    holonomy: the edge's nodes receive T dOmega/dx (elastic.tangent_torques). Its velocity Jacobian c l_e is a
+    damping of the flagella's twist, which otherwise carries only its inertia.
+    """
+    name = "spin_drag"
+    kernel_groups = ("spin_drag",)
+    description = ("drag on each flagellum spinning about its own axis, -c*l*omega per edge (c = 4*pi*mu*r0^2, or "
+                   "the granular analogue: medium.spin_drag); not in the paper's model")
+
+    def __init__(self, net: RodNetwork, coefficient: float):
+        from .elastic import tangent_torques      # compiled; built with the model, which imports elastic anyway
+        self._kernel = tangent_torques
+        self.c = float(coefficient)
+        self.edges = np.concatenate(net.flagella_edges).astype(np.int64)
+        self.c_l = self.c * net.edge_rest_length[self.edges]              # N m s per edge
+        self.dofs = net.edge_dof(self.edges).astype(np.int64)
+        ends = net.edges[self.edges]                                      # (E, 2): tail, head
+        self.x_dofs = np.ascontiguousarray(np.concatenate([net.node_dofs(ends[:, 0]), net.node_dofs(ends[:, 1])],
+                                                          axis=1).astype(np.int64))      # (E, 6)
+        E = len(self.edges)
+        self._none = (np.zeros((E, 0), np.int64), np.zeros((E, 0), np.int64))
+
+    @staticmethod
+    def coefficient(scene) -> float:
+        """c (N s): the spin drag per length and per rad/s that ``medium.spin_drag`` selects."""
+        r0, med = scene.flagellum.radius, scene.medium
+        if med.spin_drag == "granular":
+            return med.spin_traction * scene.eta_t * r0 * r0
+        return 4.0 * math.pi * med.mu * r0 * r0
+
+    @classmethod
+    def from_scene(cls, scene, net, elastic):
+        return cls(net, cls.coefficient(scene))
+
+    def blocks(self):
+        th = self.dofs[:, None]
+        return [(th, th), (self.x_dofs, self.x_dofs), (self.x_dofs, th)]
+
+    def bind(self, slots):
+        super().bind(slots)
+        E = len(self.edges)
+        self._s_xx = self.slots[1].reshape(E, 36)
+        self._s_xth = self.slots[2].reshape(E, 6)
+
+    def add_force(self, ctx, r):
+        tq = self.c_l * ctx.v[self.dofs]               # -T
+        r[self.dofs] += tq
+        fr = ctx.frames
+        self._kernel(fr.t, fr.t_committed, fr.length, self.edges, tq, tq, self.x_dofs, r, np.empty(0),
+                     *self._none, False)
+
+    def add_jacobian(self, ctx, J):
+        tq = self.c_l * ctx.v[self.dofs]
+        dtq = self.c_l * ctx.dv_dq
+        J[self.slots[0]] += dtq
+        fr = ctx.frames
+        self._kernel(fr.t, fr.t_committed, fr.length, self.edges, tq, dtq, self.x_dofs, np.zeros(len(ctx.q)), J,
+                     self._s_xx, self._s_xth, True)
+
+    def axial_torque(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The torque (N m, a 3-vector) the spin drag exerts on the flagella at positions x (N, 3), DOF velocities v."""
+        e = x[self.x_dofs[:, 5] // 3] - x[self.x_dofs[:, 0] // 3]
+        t = e / np.linalg.norm(e, axis=1)[:, None]
+        return -(self.c_l * v[self.dofs]) @ t
+
+
 # ----------------------------------------------------------------------------------------------- drivers
 class Motor(Driver):
     """The motor at the head centre: the natural twist of the head/shaft hinge advances with the drive angle.
@@ -460,4 +538,4 @@ class GranularYield(Effect):
 #: adding an effect is one class here plus, if it has constants, its keys in a scene section)
 EFFECT_TYPES: dict[str, type[Effect]] = {cls.name: cls for cls in
                                          (Inertia, RFTDrag, HeadDrag, HeadTorque, Motor, Clamp, Gravity,
-                                          GranularYield)}
+                                          GranularYield, SpinDrag)}

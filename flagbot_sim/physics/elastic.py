@@ -384,6 +384,16 @@ def tangent_torque(t, tc, length, edge, tq, dtq, x_dofs, r, J, s_xx, s_xth, want
         J[s_xth[3 + i]] += dtq * gi
 
 
+
+@kernel
+def tangent_torques(t, tc, length, edges, tq, dtq, x_dofs, r, J, s_xx, s_xth, want_jacobian):
+    """:func:`tangent_torque` for every edge of ``edges`` (torques -tq[k] about their tangents, d tq / d theta =
+    dtq[k]): ``x_dofs`` (E, 6), ``s_xx`` (E, 36), ``s_xth`` (E, 6), one row per edge (zero-length rows are not
+    read without the Jacobian). A distributed torque about the tangents (the flagella's spin drag) in one call."""
+    for k in range(edges.shape[0]):
+        tangent_torque(t, tc, length, edges[k], tq[k], dtq[k], x_dofs[k], r, J, s_xx[k], s_xth[k],
+                       want_jacobian)
+
 @stage
 def _edge_holonomy(t, tc, length, g, Hh, want_hessian):
     """Per edge: dOmega/de (3) and d2Omega/de2 (3x3) of the holonomy spin Omega.

@@ -160,13 +160,18 @@ class RobotModel:
         return float(-el.hinge_moments(q, el.trial_frames(q, frames), h, drive_angle)[h, 2])
 
     def medium_force(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Total RFT force (N) and torque about the origin (N m) on the flagella at node positions ``x`` (N, 3)
-        and DOF velocities ``v``; zero without the rft effect."""
+        """Total force (N) and torque about the origin (N m) of the medium on the flagella at node positions ``x``
+        (N, 3) and DOF velocities ``v``: RFT's, plus the spin drag's couple where the scene lists it; zero
+        without either."""
+        F, T = np.zeros(3), np.zeros(3)
         rft = self.effect("rft")
-        if rft is None:
-            return np.zeros(3), np.zeros(3)
-        F = rft.node_forces(x, v)
-        return F.sum(axis=0), np.cross(x[rft.k], F).sum(axis=0)
+        if rft is not None:
+            f = rft.node_forces(x, v)
+            F, T = f.sum(axis=0), np.cross(x[rft.k], f).sum(axis=0)
+        spin = self.effect("spin_drag")
+        if spin is not None:
+            T = T + spin.axial_torque(x, v)
+        return F, T
 
     def residual(self, ctx: StepContext) -> np.ndarray:
         """The residual at the context's trial configuration; all NaN where a formula divides by an exact zero

@@ -160,6 +160,17 @@ def _warm_head_torque() -> None:
                    np.arange(36, dtype=np.int64), np.arange(36, 42, dtype=np.int64), True)
 
 
+def _warm_spin_drag() -> None:
+    """The flagella's spin drag: torques about every flagellum edge's tangent (residual and Jacobian)."""
+    from .elastic import tangent_torques
+    net, q, x, t, length, *_ = _tiny_network()
+    edges = np.arange(2, dtype=np.int64)
+    x_dofs = np.tile(np.arange(6, dtype=np.int64), (2, 1))
+    tangent_torques(t, t, length, edges, np.ones(2), np.ones(2), x_dofs, np.zeros(net.ndof), np.zeros(84),
+                    np.arange(72, dtype=np.int64).reshape(2, 36), np.arange(72, 84, dtype=np.int64).reshape(2, 6),
+                    True)
+
+
 def _warm_clamp() -> None:
     """The clamp's prescribed twist angles."""
     from .frames import twist_for_director
@@ -194,6 +205,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
     _group(_warm_rft, ("effects.rft",), 0.35),
     _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
     _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
+    _group(_warm_spin_drag, ("elastic.tangent_torques",), 0.5),
 )}
 
 #: what every model needs: its frames and its springs
