@@ -119,6 +119,19 @@ def test_prediction_of_held_out_rows(experiments):
     assert all(r["inputs"]["robot.n_flagella"] == 3 for r in pred["rows"])
     for o in ("v", "omega_h"):
         assert 0 < pred["summary"][o]["max_relative_error"] < 0.03
+    # every predicted value carries its numerical error: the space part (a steady solve), as a steady solve of that
+    # row's scene reports it
+    from flagbot_sim.physics import error_estimate
+    from flagbot_sim.physics.model import RobotModel
+    from flagbot_sim.physics.steady import SteadySolver, summary
+    row = pred["rows"][-1]
+    sc = res.fitted_scene().with_overrides(row["inputs"])
+    m = RobotModel(sc)
+    sol = SteadySolver(m).solve(sc.omega_T)
+    own = error_estimate.for_steady(m, sol, summary(m, sol))["error_estimate"]
+    for o in ("v", "omega_h"):
+        assert row[o]["error_estimate"] == pytest.approx(own[o], rel=1e-3)
+        assert pred["summary"][o]["max_error_estimate"] == max(r[o]["error_estimate"] for r in pred["rows"])
     # and the prediction is a real evaluation: the start constants predict it much worse
     worse = predict(base, held, Engine("serial"))
     assert worse["summary"]["v"]["rms_relative_error"] > 5 * pred["summary"]["v"]["rms_relative_error"]

@@ -155,13 +155,16 @@ def format_fit(res: dict, pred: dict | None) -> str:
               "r = difference / std, or / the output's RMS where no *_std column is given: a weight, not a z-score")
     lines += ["", _row_lines(f"residuals (simulated - measured; {r_text})", res["rows"], res["outputs"])]
     if pred is not None:
+        from ..physics.error_estimate import percent
         lines += ["", _row_lines(f"prediction of {pred['data']} with the fitted scene", pred["rows"],
                                  [o for o in ("v", "omega_h") if o in pred["summary"]], r_needs_std=True)]
         for o, sm in pred["summary"].items():
             pct = {k: None if sm[k] is None else 100 * sm[k] for k in ("rms_relative_error", "max_relative_error")}
             lines.append(f"  {o}: RMS relative error {_g(pct['rms_relative_error'], '.2f')}%, largest "
                          f"{_g(pct['max_relative_error'], '.2f')}%"
-                         + (f", RMS z {_g(sm['rms_z'], '.3g')}" if sm["rms_z"] is not None else ""))
+                         + (f", RMS z {_g(sm['rms_z'], '.3g')}" if sm["rms_z"] is not None else "")
+                         + (f"; the simulation's own numerical error at most +/- {percent(sm['max_error_estimate'])}"
+                            if sm.get("max_error_estimate") is not None else ""))
     for w in res["warnings"]:
         lines.append(f"WARNING: {w}")
     return "\n".join(lines)

@@ -74,6 +74,12 @@ def cmd_run(args) -> int:
             view.close(sim)
     bar.close()
     out = sim.summary()
+    if not error and sim.steps:
+        from ..physics import error_estimate
+        out.update(error_estimate.for_run(sim, out))
+        line = error_estimate.warning_line(out)
+        if line:
+            warnings.append(line)
     out.setdefault("startup_seconds", startup)
     if paced0 is not None:
         # the stepping's own wall time and real-time factor stay as they are; the view's pacing is apart
@@ -98,21 +104,25 @@ def format_summary(scene, out: dict) -> str:
         v = out.get(key)
         return finite_text(None if v is None else scale * v, spec)
 
+    from ..physics.error_estimate import plus_minus
     omega_T = out["omega_T"]
     lines = [f"scene {out['scene']}  n = {out['n_flagella']}  omega_T = {g('omega_T', '.4f')} rad/s "
              f"({g('omega_T', '.1f', 1 / RPM)} rpm)  t = {g('time', '.3f')} s"]
     if scene.clamped:
         tip = out.get("tip") or []
-        lines += [f"  Fx  (axial force on the flagellum)  = {g('Fx', '+.6e')} N",
-                  f"  Tx  (torque about the axis)        = {g('Tx', '+.6e')} N m",
-                  "  tip (co-rotating frame)            = [" + ", ".join(finite_text(v, "+.6f") for v in tip) + "] m"]
+        lines += [f"  Fx  (axial force on the flagellum)  = {g('Fx', '+.6e')} N{plus_minus(out, 'Fx')}",
+                  f"  Tx  (torque about the axis)        = {g('Tx', '+.6e')} N m{plus_minus(out, 'Tx')}",
+                  "  tip (co-rotating frame)            = [" + ", ".join(finite_text(v, "+.6f") for v in tip) + "] m"
+                  + (f"{plus_minus(out, 'tip')} of L" if plus_minus(out, "tip") else "")]
     else:
         omega_h, v = out.get("omega_h"), out.get("v")
         share = 100 * omega_h / omega_T if omega_h is not None and omega_T else None
-        lines += [f"  omega_h = {g('omega_h', '+.5f')} rad/s ({g('omega_h', '+.2f', 1 / RPM)} rpm, "
-                  f"{finite_text(share, '.1f')}% of omega_T)",
-                  f"  omega_t = {g('omega_t', '+.5f')} rad/s ({g('omega_t', '+.2f', 1 / RPM)} rpm)",
-                  f"  v       = {g('v', '+.6e')} m/s ({g('v', '+.4f', 1e3)} mm/s, positive = head first)",
+        lines += [f"  omega_h = {g('omega_h', '+.5f')} rad/s{plus_minus(out, 'omega_h')} "
+                  f"({g('omega_h', '+.2f', 1 / RPM)} rpm, {finite_text(share, '.1f')}% of omega_T)",
+                  f"  omega_t = {g('omega_t', '+.5f')} rad/s{plus_minus(out, 'omega_t')} "
+                  f"({g('omega_t', '+.2f', 1 / RPM)} rpm)",
+                  f"  v       = {g('v', '+.4f', 1e3)} mm/s{plus_minus(out, 'v')} ({g('v', '+.6e')} m/s, positive = "
+                  "head first)",
                   f"  normalised: omega_T_bar = {finite_text(normalise_omega(scene, omega_T), '.2f')}, "
                   f"v_bar = {finite_text(None if v is None else normalise_speed(scene, v), '.4f')}"]
     if out.get("rft_coefficients"):

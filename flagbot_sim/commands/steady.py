@@ -38,13 +38,14 @@ def parse_rpm_list(text: str) -> list[float]:
 def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = True) -> list[dict]:
     """The steady state of ``scene`` at each motor speed (rpm; default the scene's), as summary dicts. A failure
     at one speed is that entry's ``error``; the next speed starts again from the straight robot."""
-    from ..physics import warmup
+    from ..physics import error_estimate, warmup
     from ..physics.medium import coefficients_report
     from ..physics.model import RobotModel
     from ..physics.steady import SteadyFailed, SteadySolver, summary
     compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
     model = RobotModel(scene)
     solver = SteadySolver(model)
+    space = error_estimate.SpaceEstimator(scene)      # Richardson's coarse solve, continued like the fine one
     startup = process_age()            # process start to solver ready, as run --json's startup_seconds
     out, prev = [], None
     for rpm in (omega_rpm if omega_rpm is not None else [scene.motor.omega_rpm]):
@@ -58,6 +59,9 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
             prev = None
             continue
         row = summary(model, sol)
+        row.update(error_estimate.for_steady(model, sol, row, space))
+        line = error_estimate.warning_line(row)
+        row["warnings"] = [line] if line else []       # run --json's field (its warnings), for one schema
         if stability:
             st = solver.stability(sol)
             row["stability"] = st.to_dict()
@@ -74,16 +78,21 @@ def format_row(scene, row: dict) -> str:
     head = f"scene {row['scene']}  n = {row['n_flagella']}  omega_T = {w:.4f} rad/s ({w / RPM:.1f} rpm)"
     if "error" in row:
         return head + f"\n  NO EQUILIBRIUM: {row['error']}"
+    from ..physics.error_estimate import plus_minus
     lines = [head]
     if scene.clamped:
-        lines += [f"  Fx  (axial force on the flagellum)  = {row['Fx']:+.6e} N",
-                  f"  Tx  (torque about the axis)        = {row['Tx']:+.6e} N m",
-                  "  tip (co-rotating frame)            = [" + ", ".join(f"{v:+.6f}" for v in row["tip"]) + "] m"]
+        lines += [f"  Fx  (axial force on the flagellum)  = {row['Fx']:+.6e} N{plus_minus(row, 'Fx')}",
+                  f"  Tx  (torque about the axis)        = {row['Tx']:+.6e} N m{plus_minus(row, 'Tx')}",
+                  "  tip (co-rotating frame)            = [" + ", ".join(f"{v:+.6f}" for v in row["tip"]) + "] m"
+                  + (f"{plus_minus(row, 'tip')} of L" if plus_minus(row, "tip") else "")]
     else:
         share = f", {100 * row['omega_h'] / w:.1f}% of omega_T" if w else ""
-        lines += [f"  omega_h = {row['omega_h']:+.5f} rad/s ({row['omega_h'] / RPM:+.2f} rpm{share})",
-                  f"  omega_t = {row['omega_t']:+.5f} rad/s ({row['omega_t'] / RPM:+.2f} rpm)",
-                  f"  v       = {row['v']:+.6e} m/s ({1e3 * row['v']:+.4f} mm/s, positive = head first)",
+        lines += [f"  omega_h = {row['omega_h']:+.5f} rad/s{plus_minus(row, 'omega_h')} ({row['omega_h'] / RPM:+.2f} "
+                  f"rpm{share})",
+                  f"  omega_t = {row['omega_t']:+.5f} rad/s{plus_minus(row, 'omega_t')} ({row['omega_t'] / RPM:+.2f} "
+                  "rpm)",
+                  f"  v       = {1e3 * row['v']:+.4f} mm/s{plus_minus(row, 'v')} ({row['v']:+.6e} m/s, positive = head "
+                  "first)",
                   f"  motor torque = {row['motor_torque']:+.6e} N m"]
     if row.get("rft_coefficients"):
         from ..physics.medium import describe
@@ -97,6 +106,8 @@ def format_row(scene, row: dict) -> str:
                      if st["stable"] else
                      f"  UNSTABLE: a perturbation grows at {st['slowest_rate']:.3g} 1/s (a real robot does not "
                      "stay in this state)")
+    for line in row.get("warnings", []):
+        lines.append(f"  WARNING: {line}")
     lines.append(f"  residual {row['residual']:.2e} N after {row['newton_iterations']} Newton iterations "
                  f"({len(row['continuation'])} continuation step(s)), {1e3 * row['wall_seconds']:.1f} ms")
     return "\n".join(lines)

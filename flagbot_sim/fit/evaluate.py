@@ -28,8 +28,8 @@ def _group_key(overrides: dict) -> str:
     return repr(sorted((k, repr(v)) for k, v in overrides.items() if k != RPM_KEY))
 
 
-def make_tasks(base: Scene, shared: dict, rows: list[dict], stability: bool = False, chunk: int = CHUNK
-               ) -> list[dict]:
+def make_tasks(base: Scene, shared: dict, rows: list[dict], stability: bool = False, chunk: int = CHUNK,
+               error_estimates: bool = False) -> list[dict]:
     """Tasks for ``rows`` ({"index": ..., "overrides": {...}} each) of ``base`` with ``shared`` overrides on top.
 
     Rows are grouped by their overrides other than the motor speed (in order of first appearance), sorted by
@@ -46,7 +46,7 @@ def make_tasks(base: Scene, shared: dict, rows: list[dict], stability: bool = Fa
                           "overrides": {**base.overrides, **shared},
                           "rows": [{"index": r["index"], "overrides": dict(r["overrides"])}
                                    for r in members[i:i + chunk]],
-                          "stability": bool(stability)})
+                          "stability": bool(stability), "error_estimates": bool(error_estimates)})
     return tasks
 
 
@@ -76,17 +76,17 @@ def run_rows(task: dict) -> dict:
 
     A row whose equilibrium is not found (also not from the straight robot, when it was continued) gets its
     ``error`` text and NaN values; the other rows go on."""
-    from ..physics import warmup
+    from ..physics import error_estimate, warmup
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadyFailed, SteadySolver
+    from ..physics.steady import SteadyFailed, SteadySolver, summary
     warmup.ensure_compiled()
     w0 = time.perf_counter()
     out = []
-    prev, prev_key = None, None
+    prev, prev_key, space = None, None, None
     for row in task["rows"]:
         key = _group_key(row["overrides"])
         if key != prev_key:
-            prev = None
+            prev, space = None, None
         prev_key = key
         try:
             scene = scene_from_dict(task["scene_data"], source=task["source"],
@@ -104,6 +104,10 @@ def run_rows(task: dict) -> dict:
             prev = None
             continue
         res = equilibrium_outputs(model, solver, sol, bool(task.get("stability")))
+        if task.get("error_estimates"):
+            # the space part (a steady solve has no time part), Richardson's coarse solve continued in the group
+            space = space or error_estimate.SpaceEstimator(scene)
+            res["error_estimate"] = error_estimate.for_steady(model, sol, summary(model, sol), space)["error_estimate"]
         error = res.pop("error")
         out.append({"index": row["index"], **res, "residual": float(sol.residual),
                     "iterations": int(sol.iterations), "error": error})
@@ -111,13 +115,14 @@ def run_rows(task: dict) -> dict:
     return {"rows": out, "wall_seconds": time.perf_counter() - w0}
 
 
-def evaluate(engine, base: Scene, shared_list: list[dict], rows: list[dict], stability: bool = False
-             ) -> list[list[dict]]:
+def evaluate(engine, base: Scene, shared_list: list[dict], rows: list[dict], stability: bool = False,
+             error_estimates: bool = False) -> list[list[dict]]:
     """The rows' results for each overrides dict of ``shared_list`` (one batch on the engine): a list, per
-    shared dict, of row results ordered like ``rows``."""
+    shared dict, of row results ordered like ``rows``; ``error_estimates``: each with its ``error_estimate``
+    (physics/error_estimate.py: the relative numerical error of each output, the space part)."""
     tasks, owner = [], []
     for j, shared in enumerate(shared_list):
-        ts = make_tasks(base, shared, rows, stability)
+        ts = make_tasks(base, shared, rows, stability, error_estimates=error_estimates)
         tasks += ts
         owner += [j] * len(ts)
     results = engine.map(run_rows, tasks)

@@ -319,6 +319,9 @@ def row_table(data: Dataset, sims: list[dict]) -> list[dict]:
             entry[output] = {"measured": y, "simulated": s, "difference": s - y,
                              "relative": (s - y) / abs(y) if y != 0 else None, "std": sigma,
                              "std_given": row.std.get(output) is not None, "residual": (s - y) / sigma}
+            est = sim.get("error_estimate")
+            if est is not None:          # predictions: the simulated value's estimated numerical error
+                entry[output]["error_estimate"] = est.get(output)
         entry["stable"] = sim.get("stable")
         out.append(entry)
     return out
@@ -435,16 +438,20 @@ def run_fit(base: Scene, params: list[Parameter], data: Dataset, engine, absolut
 
 
 def predict(scene: Scene, data: Dataset, engine) -> dict:
-    """The scene (e.g. the fitted one) on held-out rows: per-row errors and their RMS per output."""
-    sims = evaluate(engine, scene, [{}], engine_rows(data), stability=True)[0]
+    """The scene (e.g. the fitted one) on held-out rows: per-row errors and their RMS per output, and each
+    simulated value's estimated numerical error (``error_estimate``, relative; the summary's largest)."""
+    sims = evaluate(engine, scene, [{}], engine_rows(data), stability=True, error_estimates=True)[0]
     rows = row_table(data, sims)
     summary = {}
     for o in data.outputs:
         rel = [r[o]["relative"] for r in rows if o in r and r[o]["relative"] is not None
                and math.isfinite(r[o]["relative"])]
         z = [r[o]["residual"] for r in rows if o in r and r[o]["std_given"] and math.isfinite(r[o]["residual"])]
+        num = [r[o]["error_estimate"] for r in rows if o in r and r[o].get("error_estimate") is not None
+               and math.isfinite(r[o]["error_estimate"])]
         summary[o] = {"rms_relative_error": math.sqrt(sum(e * e for e in rel) / len(rel)) if rel else None,
                       "max_relative_error": max((abs(e) for e in rel), default=None),
+                      "max_error_estimate": max(num, default=None),
                       "rms_z": math.sqrt(sum(e * e for e in z) / len(z)) if z else None}
     failed = [r["line"] for r in rows if r["error"]]
     return {"data": data.path, "rows": rows, "summary": summary, "failed_lines": failed}

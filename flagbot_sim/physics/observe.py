@@ -312,6 +312,7 @@ class SteadyDetector:
         self.changes = np.zeros(0)        # each quantity's relative change over the last window (last check)
         self.change = math.nan            # the largest of them
         self.tail = math.nan              # largest extrapolated relative distance to the final value
+        self.tails = np.zeros(0)          # each quantity's (the extrapolation where geometric, else its change)
         self.next_check = t0 + 0.5 * self.window
 
     def due(self, t: float) -> bool:
@@ -339,7 +340,8 @@ class SteadyDetector:
             rho = np.where(clear, d / np.where(clear, d_prev, 1.0), 1.0)
             factor = np.where(clear & (rho < 1.0), np.minimum(rho / np.maximum(1.0 - rho, 1e-12), self.MAX_TAIL),
                               1.0)
-        self.tail = float(np.max(factor * d))
+        self.tails = factor * d
+        self.tail = float(np.max(self.tails))
         ok = self.change < self.rtol and self.tail < self.rtol
         self.passed = self.passed + 1 if ok else 0
         self.steady = self.passed >= self.confirm

@@ -54,6 +54,7 @@ class Simulation:
         self.wall_seconds = 0.0
         self._recent = deque(maxlen=CUT_WINDOW)     # (dt reductions, smallest sub-step) of the last steps
         self._recent_cuts = 0                       # their dt reductions in total
+        self._velocity_errors = deque()             # (t, the step's velocity error estimate) over the last window
 
     # ---------------------------------------------------------------- command
     @property
@@ -100,6 +101,10 @@ class Simulation:
             self._recent_cuts -= self._recent[0][0]
         self._recent.append((stats.reductions, stats.dt_min))
         self._recent_cuts += stats.reductions
+        ve = self._velocity_errors
+        ve.append((new.t, stats.velocity_error))
+        while ve and ve[0][0] < new.t - self.steady_detector.window:
+            ve.popleft()
         if self.steady_detector.due(new.t):
             self.steady_detector.update(new.t, *self._steady_sample())
         # the step's whole cost, its observation included (a caller's callback is the caller's)
@@ -187,6 +192,32 @@ class Simulation:
                 "n_flagella": self.scene.robot.n_flagella, "steady": self.steady,
                 "steady_change": self.steady_detector.change, "integrator": self.stepper.integrator.name,
                 "error_control_rtol": self.stepper.rtol}
+
+    # ---------------------------------------------------------------- error estimates
+    def velocity_error(self) -> float:
+        """The mean over the steps of the last steady window of each step's estimated relative error of the
+        velocity the medium sees (``StepStats.velocity_error``: the integrator's own local error estimate); NaN
+        before any step had one. physics/error_estimate.py turns it into each output's time error."""
+        vals = [e for _, e in self._velocity_errors if not math.isnan(e)]
+        return float(np.mean(vals)) if vals else math.nan
+
+    def settling_error(self) -> dict[str, float]:
+        """Each output's estimated relative distance to its final value that the run has not covered (the
+        steady-state rule's extrapolated tail of each quantity, or its change over the last window where the
+        approach is not clearly geometric; NaN before the rule has compared three samples). Clamped: Fx, Tx and
+        the tip over L; free robot: omega_h, omega_t, v."""
+        tails = self.steady_detector.tails
+        clamped = self.scene.clamped
+        names = ("Fx", "Tx", "tip") if clamped else ("omega_h", "omega_t", "v")
+        if len(tails) == 0:
+            return {k: math.nan for k in names}
+        if clamped:
+            return {"Fx": float(tails[3]), "Tx": float(tails[4]), "tip": float(np.linalg.norm(tails[:3]))}
+        ss = self.steady_state()
+        w_h, w_t = abs(ss["omega_h"]), abs(ss["omega_t"])
+        # omega_t = omega_T - omega_h: its error is omega_h's, relative to omega_t
+        wt = float(tails[0]) * w_h / w_t if w_t > 0 else math.nan
+        return {"omega_h": float(tails[0]), "omega_t": wt, "v": float(tails[1])}
 
     # ---------------------------------------------------------------- observations
     def snapshot(self) -> Snapshot:

@@ -43,6 +43,11 @@ class StepStats:
     jacobians: int = 0             # Jacobian evaluations + factorisations
     chord_rejections: int = 0      # corrections with a kept factorisation that contracted too slowly
     error: float = 0.0             # error control: the accepted step's error norm (<= 1)
+    #: the step's estimated relative error of the velocity the medium sees (the largest over its sub-steps),
+    #: from the integrator's own local error estimate, fixed or error-controlled steps alike; NaN before the
+    #: integrator has the history it needs (see Stepper.velocity_error). Simulation.velocity_error and the
+    #: error estimates of every result (physics/error_estimate.py) read it: a stepper must fill it per step
+    velocity_error: float = math.nan
 
 
 class ImplicitEuler:
@@ -120,6 +125,12 @@ class BDF2:
 
 
 INTEGRATORS = {cls.name: cls for cls in (ImplicitEuler, BDF2)}
+
+#: Stepper.velocity_error: the Milne estimate's share of the velocity error in steady rotation, inverted. BDF2's
+#: estimate is 2/11 (omega h)^2 of the displacement where its velocity is (omega h)^2 / 3 too fast: 11/6 = 11/9
+#: times c0 = 3/2 (at other step ratios c0 = (1 + 2w) / (1 + w)); implicit Euler's is (omega h) / 3 where its
+#: velocity turns by omega h / 2: 3/2
+VELOCITY_GAIN = {2: 11.0 / 9.0, 1: 1.5}
 
 #: a correction with a kept (not fresh) factorisation is accepted if it shrinks the residual at least this much
 CHORD_CONTRACTION = 0.25
@@ -202,6 +213,11 @@ def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
         out[k, 0] = cn0 + s_new * a0 + r_new * (cp * u0 + sp * w0)
         out[k, 1] = cn1 + s_new * a1 + r_new * (cp * u1 + sp * w1)
         out[k, 2] = cn2 + s_new * a2 + r_new * (cp * u2 + sp * w2)
+
+
+def _larger(a: float, b: float) -> float:
+    """The larger of two estimates, NaN (none) only if both are."""
+    return b if math.isnan(a) else (a if math.isnan(b) else max(a, b))
 
 
 def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: int) -> np.ndarray:
@@ -308,6 +324,7 @@ class Stepper:
                 if h < self.min_dt:
                     raise self._failed(cur, 2 * h, stats)
                 continue
+            stats.velocity_error = _larger(stats.velocity_error, self.velocity_error(cur, h, new.q))
             cur = new
             remaining -= h
             stats.substeps += 1
@@ -344,6 +361,7 @@ class Stepper:
                     gain *= (1.0 + 2.0 * w) / (1.0 + w)
                 norm = self.error_norm(err, new.q, state.q, gain) if err is not None else 0.0
                 if norm <= 1.0:
+                    stats.velocity_error = self.velocity_error(state, h, new.q, err)
                     grow = 2.0 if norm == 0.0 else min(2.0, max(1.0, 0.9 * norm ** (-1.0 / (p + 1))))
                     new.h_next = min(grow * h, self.dt_max)
                     stats.error = norm
@@ -356,6 +374,37 @@ class Stepper:
             h *= factor
             if h < self.min_dt:
                 raise self._failed(state, h / factor, stats)
+
+    def velocity_error(self, state: State, h: float, q_new: np.ndarray, err: np.ndarray | None = None) -> float:
+        """The relative error of the velocity a step of size h from ``state`` to ``q_new`` gives the medium, as
+        the integrator's local error estimate (``err``, computed here if not given) sees it: |err| / |q_new - q|
+        over what :meth:`error_norm` counts, times VELOCITY_GAIN (BDF2: times c0 too), so that in steady
+        rotation it is the velocity's relative error itself ((omega h)^2 / 3 for BDF2, omega h / 2 for implicit
+        Euler). Cheap (no solve: the extrapolation of the last states). NaN without the history it needs."""
+        if err is None:
+            err = self.integrator.error(state, h, q_new)
+        if err is None:
+            return math.nan
+        e2, d2, _ = self._error_sums(err, q_new, state.q)
+        if d2 <= 0.0:
+            return 0.0
+        gain = VELOCITY_GAIN[self.integrator.order]
+        if self.integrator.order == 2 and state.h > 0.0:
+            w = h / state.h
+            gain *= (1.0 + 2.0 * w) / (1.0 + w)
+        return gain * math.sqrt(e2 / d2)
+
+    def _error_sums(self, err: np.ndarray, q_new: np.ndarray, q_old: np.ndarray) -> tuple[float, float, int]:
+        """(|err|^2, |q_new - q_old|^2, count) over the free nodes and the rigid parts' twist angles (in metres)."""
+        N = self.model.net.n_nodes
+        twist = self._norm_twist
+        ell = self.model.length_scale
+        d = q_new - q_old
+        e_x, d_x = err[: 3 * N].reshape(N, 3)[self._free_nodes], d[: 3 * N].reshape(N, 3)[self._free_nodes]
+        e_t, d_t = err[3 * N:][twist], d[3 * N:][twist]
+        e2 = float(np.sum(e_x * e_x) + ell * ell * np.dot(e_t, e_t))
+        d2 = float(np.sum(d_x * d_x) + ell * ell * np.dot(d_t, d_t))
+        return e2, d2, e_x.size // 3 + e_t.size
 
     def error_norm(self, err: np.ndarray, q_new: np.ndarray, q_old: np.ndarray, gain: float = 1.0) -> float:
         """The step's relative velocity error, times the calibration ``gain``, over rtol (accepted if <= 1).
@@ -385,18 +434,9 @@ class Stepper:
         Measured (docs/accuracy.md: both designs' clamped flagellum at 0.5-2000 rpm, the free robot at 100 rpm;
         rtol 1e-2 to 1e-4): the largest error of the steady outputs is at most 0.71 rtol (BDF2) and 0.64 rtol
         (implicit Euler); the uncalibrated RMS of node-wise ratios gave 2.8 rtol."""
-        net = self.model.net
-        N = net.n_nodes
-        twist = self._norm_twist
-        ell = self.model.length_scale
-        d = q_new - q_old
-        e_x, d_x = err[: 3 * N].reshape(N, 3)[self._free_nodes], d[: 3 * N].reshape(N, 3)[self._free_nodes]
-        e_t, d_t = err[3 * N:][twist], d[3 * N:][twist]
-        n = e_x.size // 3 + e_t.size
+        e2, d2, n = self._error_sums(err, q_new, q_old)
         if n == 0:
             return 0.0
-        e2 = float(np.sum(e_x * e_x) + ell * ell * np.dot(e_t, e_t))
-        d2 = float(np.sum(d_x * d_x) + ell * ell * np.dot(d_t, d_t))
         return gain * math.sqrt(e2) / (self.atol * math.sqrt(n) + self.rtol * math.sqrt(d2))
 
     def _failed(self, state: State, h: float, stats: StepStats) -> StepFailed:

@@ -61,6 +61,32 @@ def curve(rows: list[dict], framework: str, n: int, L: float | None = None, x: s
     return np.array([p[0] for p in pts], float), np.array([p[1] for p in pts], float)
 
 
+#: a DER point's error bar is drawn where its half-height is at least this fraction of the axes' data span
+VISIBLE_ERROR = 2e-3
+
+
+def error_bars(ax, rows: list[dict], n: int, L: float | None, y: str, colour: str, ratio: bool = False) -> int:
+    """The DER curve's estimated numerical errors (the rows' ``error_estimate_*`` column of ``y``'s output) as
+    error bars, where they are visible (VISIBLE_ERROR); ``ratio``: y / x is plotted. Returns how many."""
+    key = {"v_bar": "error_estimate_v", "omega_h_bar": "error_estimate_omega_h"}[y]
+    pts = sorted((r["omega_T_bar"], r[y], r.get(key, math.nan)) for r in rows
+                 if r["framework"] == "der" and r["n"] == n and (L is None or r["L"] == L) and not r["error"]
+                 and math.isfinite(r["omega_T_bar"]) and math.isfinite(r[y]))
+    if not pts:
+        return 0
+    x, v, e = (np.array(c, float) for c in zip(*pts))
+    if ratio:
+        keep = x != 0
+        x, v, e = x[keep], v[keep] / x[keep], e[keep]
+    span = float(np.ptp(v)) or float(np.max(np.abs(v))) or 1.0
+    half = np.abs(v) * e
+    show = np.isfinite(half) & (half >= VISIBLE_ERROR * span)
+    if show.any():
+        ax.errorbar(x[show], v[show], yerr=half[show], fmt="none", ecolor=colour, elinewidth=0.9, capsize=2.0,
+                    zorder=4, gid=f"error/{n}")
+    return int(show.sum())
+
+
 def crossovers(x: np.ndarray, y_low: np.ndarray, y_high: np.ndarray) -> list[float]:
     """x where y_high - y_low changes sign from <= 0 to > 0 (y_high overtakes y_low), linearly interpolated."""
     d = np.asarray(y_high) - np.asarray(y_low)
@@ -200,6 +226,9 @@ def figure_speed(rows: list[dict], L: float | None = None, regimes=SPEED_REGIMES
             x, y = curve(rows, fw, n, L)
             if len(x):
                 ax.plot(x, y, color=_colour(ns, n), label=_legend_label(fw, n), **STYLE[fw])
+    bars = sum(error_bars(ax, rows, n, L, "v_bar", _colour(ns, n)) for n in ns) if "der" in fws else 0
+    if bars:
+        ax.plot([], [], ls="none", marker="|", ms=8, color="0.3", label="DER estimated numerical error")
     guides, stars = [], []
     pair = pair_of_n(ns)
     if pair:
@@ -244,6 +273,11 @@ def figure_head_spin(rows: list[dict], L: float | None = None, regimes=SPEED_REG
                 ax.plot(x, y, color=_colour(ns, n), label=_legend_label(fw, n), **STYLE[fw])
                 keep = x != 0
                 ax2.plot(x[keep], y[keep] / x[keep], color=_colour(ns, n), label=_legend_label(fw, n), **STYLE[fw])
+    if "der" in fws:
+        bars = sum(error_bars(ax, rows, n, L, "omega_h_bar", _colour(ns, n))
+                   + error_bars(ax2, rows, n, L, "omega_h_bar", _colour(ns, n), ratio=True) for n in ns)
+        if bars:
+            ax.plot([], [], ls="none", marker="|", ms=8, color="0.3", label="DER estimated numerical error")
     xmax = max((r["omega_T_bar"] for r in rows if math.isfinite(r["omega_T_bar"])), default=1.0)
     ax.plot([0, xmax], [0, xmax], color="0.6", lw=0.8, zorder=1, label=r"$\omega_h = \omega_T$")
     ax.set_xlabel(r"$\bar\omega_T$")

@@ -24,14 +24,19 @@ FORMAT = "flagbot_sim sweep 2"
 MANIFEST = "sweep.json"
 RESULTS = "results.csv"
 
+#: the DER rows' estimated relative numerical errors (physics/error_estimate.py): of each output (time + space),
+#: and the time and space parts' largest over the outputs (NaN where a part does not exist: no time part for a
+#: steady solve; beam rows have none)
+ERROR_COLUMNS = ["error_estimate_omega_h", "error_estimate_omega_t", "error_estimate_v", "error_estimate_time",
+                 "error_estimate_space"]
 #: columns after the grid keys' own columns
 VALUE_COLUMNS = ["n", "L", "omega_T", "omega_T_rpm", "framework", "omega_h", "omega_t", "v", "omega_T_bar",
                  "omega_h_bar", "v_bar", "w_tip_over_L", "motor_torque", "power", "cost_of_transport", "method",
                  "stable", "residual", "converged", "hit_cap", "steps", "sim_time", "change_omega_h", "change_v",
-                 "wall_seconds", "worker", "finished_at", "error"]
+                 *ERROR_COLUMNS, "wall_seconds", "worker", "finished_at", "error"]
 FLOAT_COLUMNS = {"L", "omega_T", "omega_T_rpm", "omega_h", "omega_t", "v", "omega_T_bar", "omega_h_bar", "v_bar",
                  "w_tip_over_L", "motor_torque", "power", "cost_of_transport", "residual", "sim_time",
-                 "change_omega_h", "change_v", "wall_seconds", "finished_at"}
+                 "change_omega_h", "change_v", "wall_seconds", "finished_at", *ERROR_COLUMNS}
 INT_COLUMNS = {"n", "steps"}
 BOOL_COLUMNS = {"converged", "hit_cap"}
 

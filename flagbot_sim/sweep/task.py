@@ -87,7 +87,7 @@ def run_der(scene: Scene, settings: SteadySettings) -> dict:
 
 
 def run_der_steady(scene: Scene) -> dict:
-    from ..physics import warmup
+    from ..physics import error_estimate, warmup
     from ..physics.model import RobotModel
     from ..physics.steady import SteadySolver, summary
 
@@ -97,6 +97,7 @@ def run_der_steady(scene: Scene) -> dict:
     solver = SteadySolver(model)
     sol = solver.solve(scene.omega_T)
     s = summary(model, sol)
+    s.update(error_estimate.for_steady(model, sol, s))
     stable = solver.stability(sol).stable
     omega_T = scene.omega_T
     return {"framework": "der", "error": "", "hit_cap": False, "converged": True, "method": "steady",
@@ -105,11 +106,22 @@ def run_der_steady(scene: Scene) -> dict:
             "omega_h_bar": normalise_omega(scene, s["omega_h"]), "v_bar": normalise_speed(scene, s["v"]),
             "w_tip_over_L": math.nan, "motor_torque": s["motor_torque"], "power": s["power"],
             "cost_of_transport": _nan(s["cost_of_transport"]), "steps": sol.iterations, "sim_time": math.nan,
-            "change_omega_h": math.nan, "change_v": math.nan, "wall_seconds": time.perf_counter() - w0}
+            "change_omega_h": math.nan, "change_v": math.nan, **error_columns(s),
+            "wall_seconds": time.perf_counter() - w0}
 
 
 def _nan(x):
     return math.nan if x is None else x
+
+
+def error_columns(result: dict) -> dict:
+    """A result's error fields (physics/error_estimate.py) as the sweep's flat ERROR_COLUMNS."""
+    total = result.get("error_estimate") or {}
+    out = {f"error_estimate_{k}": _nan(total.get(k)) for k in ("omega_h", "omega_t", "v")}
+    for part in ("time", "space"):
+        est = result.get(f"error_estimate_{part}")
+        out[f"error_estimate_{part}"] = max(est.values()) if est else math.nan
+    return out
 
 
 def run_der_time(scene: Scene, settings: SteadySettings) -> dict:
@@ -133,6 +145,9 @@ def run_der_time(scene: Scene, settings: SteadySettings) -> dict:
     else:
         omega_h, omega_t, v = rates["omega_h"], rates["omega_t"], rates["v"]
     eff = sim.summary()
+    if not out["error"] and sim.steps:
+        from ..physics import error_estimate
+        out.update(error_columns(error_estimate.for_run(sim, eff)))
     out.update(omega_h=omega_h, omega_t=omega_t, v=v, omega_T_bar=normalise_omega(scene, omega_T),
                omega_h_bar=normalise_omega(scene, omega_h), v_bar=normalise_speed(scene, v),
                w_tip_over_L=math.nan, motor_torque=eff["motor_torque"], power=eff["power"],
