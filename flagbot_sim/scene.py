@@ -156,6 +156,13 @@ class PlateSection:
                           ge=MIN_LENGTH, le=MAX_LENGTH)
 
 
+#: smallest accuracy.rtol accepted (0 is off): below it the steady-state rule's and Newton's floors (~1e-5) and the
+#: rod reference's own tolerance come close
+MIN_ACCURACY_RTOL = 1.0e-4
+#: the discretisation that accuracy.rtol chooses: an explicit override of any of them is refused beside it
+ACCURACY_CHOOSES = ("time.rtol", "time.integrator", "time.dt", "flagellum.edge_length")
+
+
 #: fewest Newton iterations per attempt accepted. On the built-in scenes and presets (2 s from rest, with a command
 #: reversal) a step takes 2-3 iterations from its predictor (the median), up to ~10 after a reversal. Measured dt
 #: reductions (design 1, 0.2 s = 20 steps): cap 1: 2150 (107 s of wall time on a loaded host), 2: 83, 3: 19; over
@@ -192,10 +199,19 @@ class GravitySection:
                   length=3, ge=-1.0e4, le=1.0e4)
 
 
+@dataclass(frozen=True)
+class AccuracySection:
+    rtol: float = _f(0.0, "", "total relative numerical error requested of every output (time + space): chooses "
+                              "time.rtol, time.integrator = 'bdf2', time.dt = 0.1 s and flagellum.edge_length "
+                              "(physics/error_estimate.resolve_accuracy; 0 = off, the scene's own values)",
+                     ge=0.0, le=0.1)
+
+
 SECTIONS: dict[str, type] = {
     "scene": SceneSection, "robot": RobotSection, "motor": MotorSection, "time": TimeSection,
     "flagellum": FlagellumSection, "medium": MediumSection, "head": HeadSection, "plate": PlateSection,
     "numerics": NumericsSection, "observe": ObserveSection, "gravity": GravitySection,
+    "accuracy": AccuracySection,
 }
 
 @dataclass(frozen=True)
@@ -210,6 +226,7 @@ class Scene:
     plate: PlateSection = PlateSection()
     numerics: NumericsSection = NumericsSection()
     observe: ObserveSection = ObserveSection()
+    accuracy: AccuracySection = AccuracySection()
     gravity: GravitySection = GravitySection()
     source: str = ""
     file_data: dict = field(default_factory=dict, compare=False, repr=False)
@@ -413,6 +430,15 @@ def _check_consistency(sc: Scene) -> None:
     if sc.numerics.min_dt >= sc.time.dt:
         raise SceneError(f"numerics.min_dt = {sc.numerics.min_dt} s must be smaller than time.dt = {sc.time.dt} s")
     _check_force_tol(sc)
+    acc = sc.accuracy.rtol
+    if 0.0 < acc < MIN_ACCURACY_RTOL:
+        raise SceneError(f"accuracy.rtol = {acc:g} is below what the steady-state rule and Newton's tolerance can "
+                         f"resolve: use 0 (off) or at least {MIN_ACCURACY_RTOL:g}")
+    if acc > 0.0:
+        chosen = [k for k in ACCURACY_CHOOSES if k in sc.overrides]
+        if chosen:
+            raise SceneError(f"accuracy.rtol = {acc:g} chooses {', '.join(ACCURACY_CHOOSES)}; do not also set "
+                             f"{', '.join(chosen)}")
     if sc.observe.steady_window < sc.time.dt:
         raise SceneError(f"observe.steady_window = {sc.observe.steady_window} s must be at least one time step "
                          f"(time.dt = {sc.time.dt} s)")

@@ -146,3 +146,31 @@ def test_percentages_read_as_the_summary_prints_them():
     assert "v exceeds 1%" in ee.warning_line({"error_estimate": {"v": 0.02}, "error_estimate_time": {"v": 0.019},
                                               "error_estimate_space": {"v": 0.001}})
     assert np.isclose(ee.total({"a": 1.0}, {"a": 2.0})["a"], 3.0) and ee.total(None, None) is None
+
+
+def test_accuracy_rtol_chooses_the_discretisation_and_lands_within_it():
+    """accuracy.rtol = 1e-3 on design 2's clamped flagellum at 100 rpm: BDF2 with time.rtol = 5e-4 and an edge
+    length whose space error is 0.4 of the request; the time-stepped run lands within 0.1% of the exact rod in
+    Fx, Tx and the tip (relative to its deflection, as docs/accuracy.md measures it)."""
+    from flagbot_sim.scene import SceneError
+    sc = load_scene("clamped_flagellum", D2_CLAMPED + ["motor.omega_rpm=100", "accuracy.rtol=1e-3"])
+    sim = Simulation(sc)
+    ch = sim.accuracy
+    assert ch["time.integrator"] == "bdf2" and ch["time.rtol"] == pytest.approx(5e-4)
+    assert sim.scene.time.rtol == pytest.approx(5e-4) and sim.scene.accuracy.rtol == 0.0
+    assert sim.scene.flagellum.edge_length == ch["flagellum.edge_length"] < sc.flagellum.edge_length
+    assert ch["space_error_estimate"] <= 0.4e-3 * 1.05
+    assert sim.run_until_steady(100.0)
+    out = sim.summary()
+    assert out["accuracy"] == ch
+    ref = rod_bvp.from_scene(sim.scene)
+    straight = np.array([sc.flagellum.length, sc.R_d, 0.0])
+    err = [abs(out["Fx"] / ref.Fx - 1), abs(out["Tx"] / ref.Tx - 1),
+           np.linalg.norm(np.asarray(out["tip"]) - ref.tip) / np.linalg.norm(ref.tip - straight)]
+    assert max(err) < 1e-3, err
+    # it chooses what it names: setting one of them as well is refused, and so is a request below the floors
+    for extra in ("time.rtol=1e-3", "flagellum.edge_length=0.002"):
+        with pytest.raises(SceneError, match="accuracy.rtol"):
+            load_scene("clamped_flagellum", ["accuracy.rtol=1e-3", extra])
+    with pytest.raises(SceneError, match="at least 0.0001"):
+        load_scene("clamped_flagellum", ["accuracy.rtol=1e-5"])

@@ -42,6 +42,7 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
     from ..physics.medium import coefficients_report
     from ..physics.model import RobotModel
     from ..physics.steady import SteadyFailed, SteadySolver, summary
+    scene, accuracy = error_estimate.resolve_accuracy(scene)     # accuracy.rtol: the edge length it chooses
     compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
     model = RobotModel(scene)
     solver = SteadySolver(model)
@@ -60,6 +61,8 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
             continue
         row = summary(model, sol)
         row.update(error_estimate.for_steady(model, sol, row, space))
+        if accuracy is not None:
+            row["accuracy"] = accuracy
         line = error_estimate.warning_line(row)
         row["warnings"] = [line] if line else []       # run --json's field (its warnings), for one schema
         if stability:

@@ -91,6 +91,7 @@ def run_rows(task: dict) -> dict:
         try:
             scene = scene_from_dict(task["scene_data"], source=task["source"],
                                     overrides={**task["overrides"], **row["overrides"]})
+            scene, _ = error_estimate.resolve_accuracy(scene)    # accuracy.rtol: the edge length it chooses
             model = RobotModel(scene)
             solver = SteadySolver(model)
             try:

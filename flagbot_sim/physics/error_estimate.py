@@ -222,3 +222,70 @@ def warning_line(out: dict) -> str | None:
     return (f"estimated numerical error {percent(e)} in {k} exceeds {percent(WARN_ABOVE)} (mostly {cause}: time "
             f"{percent(t)}, space {percent(s)}); ask for accuracy with time.rtol or a finer "
             f"flagellum.edge_length")
+
+
+# ----------------------------------------------------------------------------------------------- accuracy.rtol
+#: the shares of accuracy.rtol given to the time and the space error. Error control keeps the steady outputs
+#: within 0.71 time.rtol (BDF2, docs/accuracy.md): 0.5 of the request leaves ~0.36 of it for time; the edges are
+#: chosen for 0.4 of it by Richardson's estimate
+TIME_SHARE = 0.5
+SPACE_SHARE = 0.4
+#: the largest step accuracy.rtol allows (s): the 'accurate' preset's, so that a live run still advances smoothly
+ACCURACY_DT = 0.1
+#: where no equilibrium tells the space error: the worst measured at 4.11 mm (clamped flagellum up to 2000 rpm, vs
+#: the rod BVP, docs/accuracy.md), which scales with the edge length squared
+FALLBACK_SPACE_ERROR = (1.2e-2, 4.11e-3)
+
+
+def _space_error_for_accuracy(scene) -> float | None:
+    """The largest Richardson space error of the scene's steady outputs at its own edge length, the tip measured
+    against its deflection (as the accuracy study measures it: stricter than over L); None without equilibrium."""
+    from .model import RobotModel
+    from .steady import SteadyFailed, SteadySolver, summary
+    model = RobotModel(scene)
+    try:
+        sol = SteadySolver(model).solve(scene.omega_T)
+    except SteadyFailed:
+        return None
+    fine = summary(model, sol)
+    space = SpaceEstimator(scene).estimate(fine)
+    if space is None:
+        return None
+    if scene.clamped:
+        defl = bound_sensitivity(model, sol)["tip"]           # the tip's deflection over L
+        space["tip"] = space["tip"] / max(defl, 1e-12)
+    return max(space.values())
+
+
+def resolve_accuracy(scene):
+    """(scene, choice): the scene with ``accuracy.rtol``'s discretisation in place of its own, and what was
+    chosen (None when accuracy.rtol is 0: the scene unchanged).
+
+    Time: BDF2 with ``time.rtol`` = TIME_SHARE x the request, steps up to ACCURACY_DT. Space: the edge length whose
+    Richardson space error (:func:`_space_error_for_accuracy`, second order) is SPACE_SHARE x the request, found
+    from the scene's own edge length and checked once at the length chosen (a coarse start can be outside the
+    asymptotic range); never longer than a quarter of the flagellum."""
+    rtol = scene.accuracy.rtol
+    if rtol <= 0.0:
+        return scene, None
+    fl = scene.flagellum
+    longest = 0.25 * fl.length
+    h = min(fl.edge_length, longest)
+    target = SPACE_SHARE * rtol
+    err = None
+    for _ in range(2):
+        trial = scene.with_overrides({"accuracy.rtol": 0.0, "flagellum.edge_length": h})
+        err = _space_error_for_accuracy(trial)
+        if err is None:
+            e0, h0 = FALLBACK_SPACE_ERROR
+            h = h0 * math.sqrt(target / e0)
+            break
+        h_new = min(h * math.sqrt(target / max(err, 1e-300)), longest)
+        if h_new >= h and err <= target:
+            break                # the length tried is fine enough (coarser would be cheaper: keep the checked one)
+        h = 0.95 * h_new
+    h = max(min(h, longest), fl.length / 20000.0)
+    chosen = {"time.integrator": "bdf2", "time.rtol": TIME_SHARE * rtol, "time.dt": ACCURACY_DT,
+              "flagellum.edge_length": h}
+    resolved = scene.with_overrides({"accuracy.rtol": 0.0, **chosen})
+    return resolved, {"rtol": rtol, **chosen, "space_error_estimate": err}

@@ -27,7 +27,11 @@ class Simulation:
     def __init__(self, scene, steady_window: float | None = None, steady_rtol: float | None = None):
         """``steady_window`` / ``steady_rtol``: the steady-state rule's window (s) and tolerance (default: the
         scene's ``observe`` section; with error control, ``time.rtol`` > 0, at most time.rtol / 10, so that a run
-        called steady has settled well inside the accuracy it asked for)."""
+        called steady has settled well inside the accuracy it asked for). A scene with ``accuracy.rtol`` > 0 runs
+        with the discretisation that request chooses (``error_estimate.resolve_accuracy``; ``self.scene`` is the
+        resolved scene, ``self.accuracy`` what was chosen)."""
+        from .error_estimate import resolve_accuracy
+        scene, self.accuracy = resolve_accuracy(scene)
         #: time spent compiling (first run) or loading the kernels this scene uses: not simulation time
         self.compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene))
         self.scene = scene
@@ -307,6 +311,8 @@ class Simulation:
             "kernels": warmup.kernels_mode(),
             "rft_coefficients": coefficients_report(self.scene),
         }
+        if self.accuracy is not None:
+            run["accuracy"] = self.accuracy
         mass = float(self.model.net.node_mass.sum())
         if self.scene.clamped:
             return summary_fields(self.scene, mass, rates, run, clamp=(*self.medium_force_on_flagella(),

@@ -93,6 +93,7 @@ def run_der_steady(scene: Scene) -> dict:
 
     warmup.ensure_compiled()
     w0 = time.perf_counter()
+    scene, _ = error_estimate.resolve_accuracy(scene)      # accuracy.rtol: the edge length it chooses
     model = RobotModel(scene)
     solver = SteadySolver(model)
     sol = solver.solve(scene.omega_T)
