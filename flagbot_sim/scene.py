@@ -131,11 +131,11 @@ class MediumSection:
     yield_speed: float = _f(1.0e-7, "m/s", "granular yield: regularisation speed v_eps of the Coulomb law (the "
                                            "creep speed scale below the threshold)", gt=0.0, le=1.0e3)
     # the 'spin_drag' effect's coefficient (docs/physics.md, "Axial spin drag"): not in the paper's model
-    spin_drag: str = _f("viscous", "", "spin drag on the flagella about their own axes (used only with the "
-                                       "'spin_drag' effect): 'viscous', 4*pi*mu*r0^2 per length (Stokes flow "
-                                       "round a rotating cylinder), or 'granular', spin_traction*eta_t*r0^2 (the "
-                                       "grains shear the surface as in axial sliding: an assumption)",
-                        choices=("viscous", "granular"))
+    spin_drag: str = _f("medium", "", "spin drag on the flagella about their own axes (used only with the "
+                                      "'spin_drag' effect): 'viscous', 4*pi*mu*r0^2 per length (Stokes flow "
+                                      "round a rotating cylinder), 'granular', spin_traction*eta_t*r0^2 (the "
+                                      "grains shear the surface as in axial sliding: an assumption), or 'medium': "
+                                      "the one of medium.model", choices=("medium", "viscous", "granular"))
     spin_traction: float = _f(1.0, "", "granular spin drag (medium.spin_drag = 'granular'): surface traction per "
                                        "sliding speed when spinning, relative to axial sliding's "
                                        "eta_t / (2*pi*r0)", ge=0.0, le=1.0e6)

@@ -348,7 +348,8 @@ class SpinDrag(Effect):
     """Resistance of the medium to each flagellum spinning about its own axis: T_e = -c l_e omega_e about the
     tangent of every flagellum edge e (rest length l_e), omega_e the spin rate of its material frame.
 
-    c (N s, torque per length per rad/s) from ``medium.spin_drag``: 'viscous', c = 4 pi mu r0^2, the torque per
+    c (N s, torque per length per rad/s) from ``medium.spin_drag`` (medium.spin_drag_coefficient; by default the
+    one of ``medium.model``): 'viscous', c = 4 pi mu r0^2, the torque per
     length on an infinite cylinder of radius r0 turning about its axis in Stokes flow (the flow u = Omega r0^2 / r
     around it, wall shear stress 2 mu Omega); 'granular', c = k eta_t r0^2 (k = ``medium.spin_traction``), an
     assumption: the grains resist the surface sliding round the axis at omega r0 with the traction that resists
@@ -378,17 +379,10 @@ class SpinDrag(Effect):
         E = len(self.edges)
         self._none = (np.zeros((E, 0), np.int64), np.zeros((E, 0), np.int64))
 
-    @staticmethod
-    def coefficient(scene) -> float:
-        """c (N s): the spin drag per length and per rad/s that ``medium.spin_drag`` selects."""
-        r0, med = scene.flagellum.radius, scene.medium
-        if med.spin_drag == "granular":
-            return med.spin_traction * scene.eta_t * r0 * r0
-        return 4.0 * math.pi * med.mu * r0 * r0
-
     @classmethod
     def from_scene(cls, scene, net, elastic):
-        return cls(net, cls.coefficient(scene))
+        from .medium import spin_drag_coefficient
+        return cls(net, spin_drag_coefficient(scene))
 
     def blocks(self):
         th = self.dofs[:, None]

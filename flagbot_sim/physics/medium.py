@@ -108,6 +108,20 @@ def normalise_speed(scene, v: float) -> float:
     return v * rft_coefficients(scene)[1] * scene.flagellum.length ** 3 / bending_stiffness(scene)
 
 
+def spin_drag_coefficient(scene) -> float:
+    """c (N s: torque per length per rad/s) of the 'spin_drag' effect, by ``medium.spin_drag``: 'viscous',
+    4 pi mu r0^2 (Stokes flow round a cylinder turning about its axis); 'granular', spin_traction x eta_t r0^2 (an
+    assumption: the grains resist the surface sliding round the axis as they resist it sliding along it);
+    'medium' (the default), whichever of the two ``medium.model`` is (docs/physics.md, "Axial spin drag")."""
+    med, r0 = scene.medium, scene.flagellum.radius
+    kind = med.spin_drag
+    if kind == "medium":
+        kind = "viscous" if med.model == "viscous" else "granular"
+    if kind == "viscous":
+        return 4.0 * math.pi * med.mu * r0 * r0
+    return med.spin_traction * rft_coefficients(scene)[0] * r0 * r0
+
+
 def slenderness_problem(scene) -> str | None:
     """Why resistive-force theory cannot be applied to this flagellum (its coefficients would be negative or
     infinite), or None: it needs ln(2 l / r0) > 1/2 with l the formula's length scale."""
