@@ -102,13 +102,20 @@ def format_row(scene, row: dict) -> str:
         lines.append("  " + describe(row["rft_coefficients"]))
     st = row.get("stability")
     if st is not None:
-        tc = st["slowest_time_constant"]
-        lines.append(("  stable: perturbations decay" + (f" (slowest time constant {tc:.3g} s)" if tc else "")
+        settle = st.get("settling_time_constant")
+        lines.append(("  stable: perturbations decay" + (f" (the shape settles with time constant {settle:.3g} s)"
+                                                         if settle else "")
                       if st["slowest_rate"] < 0 else
                       "  stable (marginally): the slowest mode neither grows nor decays (an undamped oscillation)")
                      if st["stable"] else
                      f"  UNSTABLE: a perturbation grows at {st['slowest_rate']:.3g} 1/s (a real robot does not "
                      "stay in this state)")
+        tw = st.get("twist_oscillation")
+        if tw is not None and st["stable"]:
+            tc = tw["time_constant"]
+            lines.append(f"  the flagella's twist oscillates at {tw['frequency']:.4g} rad/s, "
+                         + (f"decaying with time constant {tc:.3g} s" if tc else "undamped")
+                         + " (no drag acts on it unless spin_drag is listed; the centreline barely shows it)")
     for line in row.get("warnings", []):
         lines.append(f"  WARNING: {line}")
     lines.append(f"  residual {row['residual']:.2e} N after {row['newton_iterations']} Newton iterations "

@@ -58,6 +58,11 @@ class SteadyFailed(RuntimeError):
     """No relative equilibrium was found; the message says at which omega_T and why."""
 
 
+#: a mode is a twist mode when the flagella's twist angles (in metres: times the edge length) carry more than this
+#: share of its shape vector's squared norm
+TWIST_SHARE = 0.5
+
+
 @dataclass
 class Stability:
     """Linear stability of an equilibrium in the overdamped limit (see :meth:`SteadySolver.stability`)."""
@@ -65,10 +70,26 @@ class Stability:
     rate: float                  # 1/s: largest real part of the growth rates of the non-neutral modes (< 0: decay)
     rates: list                  # the slowest growth rates found (1/s), largest real part first
     neutral: int                 # modes with zero growth: sideways shift and tilt of the whole robot
+    #: per mode of ``rates``: the share of its vector in the flagella's twist (TWIST_SHARE splits the kinds)
+    twist_shares: list = field(default_factory=list)
+    #: 1/s: largest real part of the non-neutral modes that move the shape (the flagella's twist carries under
+    #: TWIST_SHARE of them): the settling of the centreline, what the outputs show; NaN if none was found
+    shape_rate: float = math.nan
+    #: the slowest non-neutral twist mode (the flagella's twist carries no drag unless 'spin_drag' is listed, so
+    #: it is an almost undamped oscillation): growth rate (1/s) and angular frequency (rad/s); NaN if none
+    twist_rate: float = math.nan
+    twist_frequency: float = math.nan
 
     def to_dict(self) -> dict:
+        tc = (lambda r: (-1.0 / r) if r < 0 else None)     # noqa: E731
+        finite = (lambda x: x if math.isfinite(x) else None)   # noqa: E731
         return {"stable": self.stable, "slowest_rate": self.rate, "neutral_modes": self.neutral,
-                "slowest_time_constant": (-1.0 / self.rate) if self.rate < 0 else None}
+                "slowest_time_constant": tc(self.rate),
+                "shape_rate": finite(self.shape_rate),
+                "settling_time_constant": tc(self.shape_rate) if math.isfinite(self.shape_rate) else None,
+                "twist_oscillation": None if not math.isfinite(self.twist_rate) else
+                {"rate": self.twist_rate, "frequency": self.twist_frequency,
+                 "time_constant": tc(self.twist_rate)}}
 
 
 @dataclass
@@ -172,10 +193,13 @@ def conjugate_pairs(mu: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
     """``mu`` without a complex mode whose conjugate is missing. The pencil is real, so its modes come in
     conjugate pairs; ARPACK's k modes of largest |nu| can end on half a pair, and the modes examined must be every
     mode up to the largest |mu| reported (the slowest-mode verdict relies on that)."""
-    if len(mu) == 0:
-        return mu
-    paired = [abs(m.imag) <= rtol * abs(m) or np.min(np.abs(mu - np.conj(m))) <= rtol * max(1.0, abs(m)) for m in mu]
-    return mu[np.array(paired)]
+    return mu[_paired(mu, rtol)] if len(mu) else mu
+
+
+def _paired(mu: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
+    """The mask of :func:`conjugate_pairs`."""
+    return np.array([abs(m.imag) <= rtol * abs(m) or np.min(np.abs(mu - np.conj(m))) <= rtol * max(1.0, abs(m))
+                     for m in mu], bool)
 
 class FreeRobot:
     """The swimming robot's problem: unknowns (q, omega_t, U). The two gauge conditions (the head centre's x, the
@@ -618,12 +642,17 @@ class SteadySolver:
         v0 = np.random.default_rng(0).standard_normal(op.shape[0])
         while True:
             try:
-                nu = spla.eigs(op, k=k, which="LM", return_eigenvectors=False, tol=1e-10, maxiter=5000, v0=v0)
+                nu, vec = spla.eigs(op, k=k, which="LM", return_eigenvectors=True, tol=1e-10, maxiter=5000,
+                                    v0=v0)
             except spla.ArpackNoConvergence as exc:      # the converged ones are still eigenvalues
-                nu = exc.eigenvalues
-            nu = nu[np.abs(nu) > 1e-300]
-            mu = conjugate_pairs(sigma + 1.0 / nu)
-            mu = mu[np.argsort(-mu.real)]
+                nu, vec = exc.eigenvalues, exc.eigenvectors
+            keep = np.abs(nu) > 1e-300
+            nu, vec = nu[keep], vec[:, keep]
+            mu = sigma + 1.0 / nu
+            paired = _paired(mu)
+            mu, vec = mu[paired], vec[:, paired]
+            order = np.argsort(-mu.real)
+            mu, vec = mu[order], vec[:, order]
             neutral = problem.neutral(mu, omega_t, sigma)
             # every mode with |mu| below the neutral ones' omega_t is examined: more modes until they are found
             if neutral.sum() >= problem.neutral_modes or k >= min(MAX_MODES, op.shape[0] - 2):
@@ -634,8 +663,30 @@ class SteadySolver:
         growing = rest.real > GROWTH_RTOL * np.abs(rest)
         if not growing.any() and np.any(rest.real >= -GROWTH_RTOL * np.abs(rest)):
             rate = 0.0            # the slowest mode neither grows nor decays (to round-off): marginal
+        shares = self._twist_shares(vec[:n])
+        twist = ~neutral & (shares > TWIST_SHARE)
+        shape = ~neutral & ~twist
+        shape_rate = float(mu[shape][0].real) if shape.any() else math.nan
+        if shape.any() and abs(shape_rate) <= GROWTH_RTOL * abs(mu[shape][0]):
+            shape_rate = 0.0
+        tw = mu[twist][0] if twist.any() else complex(math.nan, math.nan)
         return Stability(stable=not growing.any(), rate=rate, rates=[complex(m) for m in mu],
-                         neutral=int(neutral.sum()))
+                         neutral=int(neutral.sum()), twist_shares=[float(x) for x in shares],
+                         shape_rate=shape_rate, twist_rate=float(tw.real), twist_frequency=float(abs(tw.imag)))
+
+    def _twist_shares(self, z: np.ndarray) -> np.ndarray:
+        """Per mode (column of z, the modes' DOF vectors, bordered or not): the share of its squared norm in the
+        flagella's twist angles, the angles counted in metres (times the edge length) like the node positions."""
+        net = self.net
+        N, ndof = self.N, self.model.ndof
+        ell2 = self.model.length_scale ** 2
+        tw = 3 * N + np.concatenate(net.flagella_edges).astype(np.int64)
+        w = np.ones(ndof)
+        w[3 * N:] = ell2
+        w[self._is_fixed] = 0.0
+        a = np.abs(z[:ndof]) ** 2
+        total = w @ a
+        return np.where(total > 0, (w[tw] @ a[tw]) / np.where(total > 0, total, 1.0), 0.0)
 
 
 def summary(model: RobotModel, sol: SteadySolution) -> dict:
