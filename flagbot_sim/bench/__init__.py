@@ -12,7 +12,8 @@ is loaded only when a benchmark actually runs.
 def accuracy_arguments(ap) -> None:
     ap.add_argument("--parts", default="front,calibration,presets",
                     help="comma-separated, from front (error vs wall time, implicit Euler and BDF2), calibration "
-                         "(requested rtol vs achieved error, 0.5-2000 rpm), presets (each accuracy preset)")
+                         "(requested rtol vs achieved error, 0.5-2000 rpm), presets (each accuracy preset), "
+                         "request (accuracy.rtol requested vs achieved vs wall time; not in the default)")
     ap.add_argument("--cases", default="clamped1,clamped2,design1_n2,design1_n3,design2_n2,design2_n3",
                     help="the front's cases, from clamped1, clamped2 (each design's clamped flagellum), design1_n2, "
                          "design1_n3, design2_n2, design2_n3 (the free robot); all at 100 rpm")

@@ -182,6 +182,7 @@ class Run:
     error: str = ""
     time_err: dict = field(default_factory=dict)
     total_err: dict = field(default_factory=dict)
+    accuracy: float = 0.0    # the 'request' part: the accuracy.rtol asked for (integrator, dt, rtol, edge: chosen)
 
     @property
     def max_time_err(self) -> float:
@@ -193,6 +194,8 @@ class Run:
 
     @property
     def label(self) -> str:
+        if self.accuracy:
+            return f"accuracy.rtol {self.accuracy:g}"
         if self.preset:
             return f"preset {self.preset}"
         step = f"rtol {self.rtol:g}" if self.rtol > 0 else f"dt {self.dt:g}"
@@ -200,19 +203,27 @@ class Run:
 
 
 def run_point(part: str, case: str, rpm: float, integrator: str, dt: float, edge: float, rtol: float = 0.0,
-              steady_rtol: float = STEADY_RTOL, preset: str = "", t_max: float = T_MAX) -> Run:
+              steady_rtol: float = STEADY_RTOL, preset: str = "", t_max: float = T_MAX, accuracy: float = 0.0) -> Run:
     """One run from rest to the steady-state rule (or t_max). With ``preset`` the preset's discretisation is
-    used as a user gets it (integrator, dt, rtol and edge are then read back from the scene)."""
+    used as a user gets it (integrator, dt, rtol and edge are then read back from the scene); with ``accuracy``
+    the one accuracy.rtol chooses (read back from the simulation, whose choice's steady solves count in the
+    wall time)."""
     scene, over = case_overrides(case, rpm)
     if preset:
         over = over + [f"scene.preset='{preset}'"]
+    elif accuracy:
+        over = over + [f"accuracy.rtol={accuracy}"]
     else:
         over = over + [f"time.integrator='{integrator}'", f"time.dt={dt}", f"time.rtol={rtol}",
                        f"flagellum.edge_length={edge}"]
     sc = load_scene(scene, over + ["observe.steady_window=2.0", f"observe.steady_rtol={steady_rtol}"])
-    r = Run(part, case, rpm, sc.time.integrator, sc.time.dt, sc.time.rtol, sc.flagellum.edge_length, preset)
+    c0 = time.perf_counter()
     sim = Simulation(sc)
-    w0 = time.perf_counter()
+    chosen = sim.scene                 # accuracy.rtol: the discretisation it chose
+    r = Run(part, case, rpm, chosen.time.integrator, chosen.time.dt, chosen.time.rtol,
+            chosen.flagellum.edge_length, preset, accuracy=accuracy)
+    # the choice's steady solves are part of what a request costs (the kernels' compile or load is not)
+    w0 = c0 + sim.compile_seconds if accuracy else time.perf_counter()
     try:
         sim.run_until_steady(t_max)
     except StepFailed as exc:
@@ -288,6 +299,24 @@ def calibration(rpms, rtols, refs: References, progress=print, quick: bool = Fal
     return runs
 
 
+#: the 'request' part: (case, rpm, accuracy.rtol), the targets of issue 23's item 2
+REQUESTS = (("clamped1", 20.0, 1e-3), ("clamped1", 100.0, 1e-3), ("clamped1", 500.0, 1e-3), ("clamped2", 100.0, 1e-3),
+            ("clamped1", 1000.0, 1e-2), ("clamped1", 2000.0, 1e-2), ("clamped2", 1000.0, 1e-2),
+            ("clamped2", 2000.0, 1e-2))
+QUICK_REQUESTS = (("clamped1", 20.0, 1e-3), ("clamped2", 100.0, 1e-3), ("clamped2", 1000.0, 1e-2))
+
+
+def requests(plan, refs: References, progress=print) -> list[Run]:
+    """accuracy.rtol requested vs achieved vs wall time: each run to the steady-state rule (as tight as its
+    time.rtol makes it) with the discretisation the request chooses."""
+    runs = []
+    for i, (case, rpm, acc) in enumerate(plan):
+        r = score(run_point("request", case, rpm, "", 0.0, 0.0, steady_rtol=acc / 20.0, accuracy=acc), refs)
+        _progress(progress, r, i + 1, len(plan))
+        runs.append(r)
+    return runs
+
+
 def presets(rpms, refs: References, repeat: int = 1, progress=print) -> list[Run]:
     """Every preset at every point, the presets interleaved within each repeat (the machine's load drifts)."""
     plan = [(c, rpm) for c in CLAMPED for rpm in rpms] + [(c, 100.0) for c in FREE]
@@ -325,7 +354,7 @@ def write_csv(path: Path, runs: list[Run], refs: References) -> None:
         w.writerow(["part", "case", "rpm", "preset", "integrator", "dt_s", "rtol", "edge_m", "steady", "sim_time_s",
                     "wall_s", "steps", "newton_iterations", "last_dt_s", *CSV_OUTPUTS,
                     *[f"time_err_{k}" for k in CSV_ERRORS], *[f"total_err_{k}" for k in CSV_ERRORS],
-                    "max_time_err", "max_total_err", "error"])
+                    "max_time_err", "max_total_err", "error", "accuracy_rtol"])
         for r in runs:
             o = _flat(r.outputs)
             w.writerow([r.part, r.case, f"{r.rpm:g}", r.preset, r.integrator, f"{r.dt:g}", f"{r.rtol:g}",
@@ -333,14 +362,14 @@ def write_csv(path: Path, runs: list[Run], refs: References) -> None:
                         f"{r.last_dt:.4g}", *[f"{o[k]:.10e}" if k in o else "" for k in CSV_OUTPUTS],
                         *[f"{r.time_err[k]:.4e}" if k in r.time_err else "" for k in CSV_ERRORS],
                         *[f"{r.total_err[k]:.4e}" if k in r.total_err else "" for k in CSV_ERRORS],
-                        f"{r.max_time_err:.4e}", f"{r.max_total_err:.4e}", r.error])
+                        f"{r.max_time_err:.4e}", f"{r.max_total_err:.4e}", r.error, f"{r.accuracy:g}"])
         for key, ref in sorted(refs.data.items()):
             kind, case, rpm, *edge = key.split("|")
             o = _flat(ref)
             w.writerow([f"reference:{kind}", case, rpm, "", ref.get("source", "steady solver"), "", "",
                         edge[0] if edge else "", "", "", f"{ref.get('wall', 0.0):.3f}", "", "", "",
                         *[f"{o[k]:.10e}" if k in o else "" for k in CSV_OUTPUTS],
-                        *[""] * (2 * len(CSV_ERRORS)), "", "", ""])
+                        *[""] * (2 * len(CSV_ERRORS)), "", "", "", ""])
 
 
 def read_csv(path: Path) -> list[Run]:
@@ -356,7 +385,8 @@ def read_csv(path: Path) -> list[Run]:
             r = Run(row["part"], row["case"], float(row["rpm"]), row["integrator"], float(row["dt_s"]),
                     float(row["rtol"]), float(row["edge_m"]), row["preset"], sim_time=num(row["sim_time_s"]),
                     wall=float(row["wall_s"]), steps=int(row["steps"]), newton=int(row["newton_iterations"]),
-                    steady=row["steady"] == "True", last_dt=num(row["last_dt_s"]), error=row["error"])
+                    steady=row["steady"] == "True", last_dt=num(row["last_dt_s"]), error=row["error"],
+                    accuracy=float(row.get("accuracy_rtol") or 0.0))
             out = {k: float(row[k]) for k in CSV_OUTPUTS if row[k]}
             if "tip_x" in out:
                 out["tip"] = [out.pop("tip_x"), out.pop("tip_y"), out.pop("tip_z")]
@@ -559,6 +589,18 @@ def markdown(runs: list[Run], refs: References) -> str:
             lines.append(f"| `{p}` | {_pct(worst(low))} | {_pct(worst(free))} | {wall(low + free)} | "
                          f"{_pct(worst(high))} | {wall(high)} |")
         lines.append("")
+    rq = [r for r in runs if r.part == "request"]
+    if rq:
+        lines += ["## Accuracy you ask for: accuracy.rtol", "",
+                  "The discretisation each request chose, its total error (vs the rod BVP: Fx, Tx, the tip over its "
+                  "deflection) and the wall time from rest to the steady state, the choice's steady solves "
+                  "included.", "",
+                  "| case | rpm | accuracy.rtol | chosen: time.rtol, edge | achieved | achieved / requested | "
+                  "wall (s) |", "|---|---|---|---|---|---|---|"]
+        for r in rq:
+            lines.append(f"| {r.case} | {r.rpm:g} | {r.accuracy:g} | {r.rtol:g}, {1e3 * r.edge:.2f} mm | "
+                         f"{_pct(r.max_total_err)} | {r.max_total_err / r.accuracy:.2f} | {r.wall:.2f} |")
+        lines.append("")
     conv = {k: v for k, v in refs.data.items() if k.startswith("converged|")}
     if conv:
         lines += ["## References", ""]
@@ -584,7 +626,7 @@ def main(argv=None) -> int:
     return run(ap.parse_args(argv))
 
 
-PARTS = ("front", "calibration", "presets")
+PARTS = ("front", "calibration", "presets", "request")
 
 
 def replot(csv_path: Path, out: Path) -> list[Path]:
@@ -634,6 +676,8 @@ def run(args) -> int:
                             quick=q)
     if "presets" in parts:
         runs += presets(QUICK_PRESET_RPM if q else PRESET_RPM, refs, repeat=1 if q else args.repeat)
+    if "request" in parts:
+        runs += requests(QUICK_REQUESTS if q else REQUESTS, refs)
     runs.sort(key=lambda r: PARTS.index(r.part))
     if any(r.part == "front" for r in runs):
         plot_front([r for r in runs if r.part == "front"], out / "accuracy_vs_time.png")
