@@ -174,3 +174,14 @@ def test_accuracy_rtol_chooses_the_discretisation_and_lands_within_it():
             load_scene("clamped_flagellum", ["accuracy.rtol=1e-3", extra])
     with pytest.raises(SceneError, match="at least 0.0001"):
         load_scene("clamped_flagellum", ["accuracy.rtol=1e-5"])
+
+
+def test_a_sweeps_summary_names_its_largest_estimated_errors():
+    from flagbot_sim.sweep.plots import _error_summary
+    rows = [{"framework": "der", "error": "", "point": "a", "error_estimate_omega_h": 0.002,
+             "error_estimate_omega_t": 0.001, "error_estimate_v": 0.02},
+            {"framework": "der", "error": "", "point": "b", "error_estimate_omega_h": math.nan,
+             "error_estimate_omega_t": 0.003, "error_estimate_v": 0.004},
+            {"framework": "nlb", "error": "", "point": "a", "error_estimate_v": math.nan}]
+    s = _error_summary(rows)
+    assert s == {"omega_h": 0.002, "omega_t": 0.003, "v": 0.02, "above_1_percent": ["a"]}

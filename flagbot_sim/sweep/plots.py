@@ -352,7 +352,8 @@ def summarise(rows: list[dict], L: float | None = None) -> dict:
     out: dict = {"L": L, "points": len({r["point"] for r in sel}),
                  "der_hit_cap": sorted(r["point"] for r in sel if r["framework"] == "der" and r["hit_cap"]),
                  "errors": [f"{r['point']} [{r['framework']}]: {r['error']}" for r in sel if r["error"]],
-                 "crossover": {}, "steepest_slope": {}, "omega_h_share": {}, "beam_vs_der": {}}
+                 "crossover": {}, "steepest_slope": {}, "omega_h_share": {}, "beam_vs_der": {},
+                 "der_error_estimate": _error_summary(sel)}
     pair = pair_of_n(ns)
     if pair:
         for fw in fws:
@@ -390,6 +391,20 @@ def summarise(rows: list[dict], L: float | None = None) -> dict:
             out["beam_vs_der"][f"{fw} n={n}"] = {
                 "omega_T_bar": xs.tolist(), "v_bar_der": v_der.tolist(), "v_bar_beam": v_b.tolist(),
                 "relative_difference": rel.tolist(), "curves_cross_at": sign_changes(xs, v_b - v_der)}
+    return out
+
+
+def _error_summary(rows: list[dict]) -> dict:
+    """The DER rows' largest estimated numerical errors (error_estimate_* columns; NaN where a CSV has none) and
+    the points whose estimate exceeds 1%."""
+    der = [r for r in rows if r["framework"] == "der" and not r["error"]]
+    out = {}
+    for k in ("omega_h", "omega_t", "v"):
+        vals = [r.get(f"error_estimate_{k}", math.nan) for r in der]
+        vals = [x for x in vals if math.isfinite(x)]
+        out[k] = max(vals) if vals else None
+    out["above_1_percent"] = sorted({r["point"] for r in der for k in ("omega_h", "omega_t", "v")
+                                     if r.get(f"error_estimate_{k}", 0.0) > 0.01})
     return out
 
 
@@ -496,6 +511,14 @@ def format_summary(summary: dict) -> str:
             lines.append(f"    v_bar {FRAMEWORK_LABELS[fw]} vs DER, {n}: {100 * rel[0]:+.1f}% at omega_T_bar = "
                          f"{b['omega_T_bar'][0]:.4g}, {100 * rel[-1]:+.1f}% at {b['omega_T_bar'][-1]:.4g}; "
                          f"max |diff| {100 * max(map(abs, rel)):.1f}%; curves cross at {cross}")
+        est = g.get("der_error_estimate") or {}
+        if any(est.get(k) is not None for k in ("omega_h", "omega_t", "v")):
+            from ..physics.error_estimate import percent
+            lines.append("    DER estimated numerical error: " + ", ".join(
+                f"{k} up to {percent(est.get(k))}" for k in ("omega_h", "omega_t", "v")))
+            if est.get("above_1_percent"):
+                lines.append(f"    WARNING: {len(est['above_1_percent'])} point(s) estimated above 1% (e.g. "
+                             f"{est['above_1_percent'][0]}): ask for accuracy with accuracy.rtol")
         for err in g["errors"][:5]:
             lines.append(f"    error: {err}")
     return "\n".join(lines)
