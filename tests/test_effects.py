@@ -140,7 +140,7 @@ def test_spin_drag_resists_a_spinning_flagellum_with_its_stated_coefficient(mode
     """The clamped flagellum at 0.5 rpm is nearly straight along the axis, so every edge spins at omega about its
     own tangent: the spin drag adds -c L omega to the medium's axial torque (c = 4 pi mu r0^2, or the granular
     analogue spin_traction eta_t r0^2) and leaves the axial force alone."""
-    from flagbot_sim.physics.medium import spin_drag_coefficient
+    from flagbot_sim.physics.medium import rft_coefficients, spin_drag_coefficient
     from flagbot_sim.physics.steady import SteadySolver, summary
     out = {}
     for effects in ("['inertia','rft','clamp']", "['inertia','rft','clamp','spin_drag']"):
@@ -150,13 +150,14 @@ def test_spin_drag_resists_a_spinning_flagellum_with_its_stated_coefficient(mode
         out[effects] = summary(m, SteadySolver(m).solve(sc.omega_T))
     plain, spin = out.values()
     r0, mu = sc.flagellum.radius, sc.medium.mu
-    c = 4 * np.pi * mu * r0 ** 2 if model == "viscous" else 2.0 * sc.eta_t * r0 ** 2
+    eta_t = rft_coefficients(sc)[0]
+    c = 4 * np.pi * mu * r0 ** 2 if model == "viscous" else 2.0 * eta_t * r0 ** 2
     assert spin_drag_coefficient(sc) == pytest.approx(c, rel=1e-14)
     # by default, the medium's own: the granular analogue in the paper's medium, Stokes' in a viscous one
-    for model, expected in (("granular_rft", sc.eta_t * r0 ** 2), ("viscous", 4 * np.pi * mu * r0 ** 2)):
+    for model, expected in (("granular_rft", eta_t * r0 ** 2), ("viscous", 4 * np.pi * mu * r0 ** 2)):
         assert spin_drag_coefficient(sc.with_overrides({"medium.spin_drag": "medium", "medium.model": model,
                                                         "medium.spin_traction": 1.0})) == pytest.approx(
             expected if model == "viscous" else
-            sc.with_overrides({"medium.model": model}).eta_t * r0 ** 2, rel=1e-14)
+            rft_coefficients(sc.with_overrides({"medium.model": model}))[0] * r0 ** 2, rel=1e-14)
     assert spin["Tx"] - plain["Tx"] == pytest.approx(-c * sc.flagellum.length * sc.omega_T, rel=1e-3)
     assert spin["Fx"] == pytest.approx(plain["Fx"], rel=1e-3)

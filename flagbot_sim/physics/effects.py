@@ -384,6 +384,12 @@ class SpinDrag(Effect):
         from .medium import spin_drag_coefficient
         return cls(net, spin_drag_coefficient(scene))
 
+    def spin_drag(self, scene):
+        """The straight (or helical, helix angle theta) flagella turning rigidly at omega spin about their tangents
+        at omega cos(theta), whose torque about the axis is c L omega cos^2(theta) each."""
+        th = helix_angle(scene.R_d, scene.flagellum.helix_pitch)
+        return 0.0, float(self.c_l.sum()) * math.cos(th) ** 2
+
     def blocks(self):
         th = self.dofs[:, None]
         return [(th, th), (self.x_dofs, self.x_dofs), (self.x_dofs, th)]
