@@ -57,7 +57,7 @@ def newton_point(sim, noise_seed=None):
     Returns (model, state, plan, q): ``model.context(q, state, plan)`` is the context the stepper would build.
     """
     m, s, h = sim.model, sim.state, sim.dt
-    angle = s.drive_angle + (m.driver.omega * h if m.driver is not None else 0.0)
+    angle = s.drive_angle + (sim.omega_T * h if m.driver is not None else 0.0)
     plan = sim.stepper.integrator.plan(s, h, angle)
     q = s.q + h * s.v
     if noise_seed is not None:

@@ -22,8 +22,9 @@ The protocol (every hook has a default here; dismech-rods' base_force has the sa
 Effects keep no state that changes during a run: what changes lives in the :class:`~.model.State` (the drive
 angle) or in the step context, so a rejected trial step leaves nothing to undo.
 
-A :class:`Driver` (motor, clamp) also takes the speed command ``omega`` (rad/s), integrated into
-``State.drive_angle`` (paper Eq. SpecifyTheta as an integral: a live command changes omega without a jump). A
+A :class:`Driver` (motor, clamp) is what the speed command ``omega`` (rad/s) drives: the command is an argument
+of every step (``Stepper.step(state, dt, omega)``), integrated into ``State.drive_angle`` (paper Eq.
+SpecifyTheta as an integral: a live command changes omega without a jump), never state of the effect. A
 driver says how the drive angle enters the physics: as the natural-twist offset of one hinge
 (``twist_hinge``, the motor) or as prescribed DOF values (``prescribed_values``, the clamp).
 """
@@ -104,12 +105,10 @@ class Effect:
 
 
 class Driver(Effect):
-    """An effect commanded by a speed omega (rad/s), whose integral is the State's ``drive_angle``."""
+    """An effect commanded by a speed omega (rad/s, the step's argument), whose integral is the State's
+    ``drive_angle``."""
     #: hinge whose natural twist advances with the drive angle (-1: none)
     twist_hinge: int = -1
-
-    def __init__(self, omega: float):
-        self.omega = float(omega)
 
 
 # ----------------------------------------------------------------------------------------------- inertia
@@ -433,13 +432,12 @@ class Motor(Driver):
     description = "motor at the head centre: natural twist of the head/shaft hinge advanced by omega_T*dt"
     on_head = True
 
-    def __init__(self, net: RodNetwork, omega_T: float):
-        super().__init__(omega_T)
+    def __init__(self, net: RodNetwork):
         self.twist_hinge = int(net.motor_hinge)
 
     @classmethod
     def from_scene(cls, scene, net, elastic):
-        return cls(net, scene.omega_T)
+        return cls(net)
 
 
 class Clamp(Driver):
@@ -454,8 +452,7 @@ class Clamp(Driver):
     description = ("flagellum base clamped to a plate driven about the axis at omega (no head; the paper's "
                    "'clamped flagellum fixed in space')")
 
-    def __init__(self, net: RodNetwork, elastic, omega: float):
-        super().__init__(omega)
+    def __init__(self, net: RodNetwork, elastic):
         self.nodes = np.unique(np.concatenate([[net.joint_node], net.edges[net.plate_edges].ravel(),
                                                net.edges[net.socket_edges].ravel()]))
         self.edges = np.concatenate([net.plate_edges, net.socket_edges])
@@ -467,7 +464,7 @@ class Clamp(Driver):
 
     @classmethod
     def from_scene(cls, scene, net, elastic):
-        return cls(net, elastic, scene.omega_T)
+        return cls(net, elastic)
 
     @staticmethod
     def rotation(phi: float) -> np.ndarray:

@@ -38,6 +38,8 @@ class Simulation:
         self.model = RobotModel(scene)
         self.stepper = Stepper(self.model)
         self.dt = scene.time.dt
+        #: the drive command in force (rad/s): an argument of every step, not state of the driver effect
+        self._omega = float(scene.omega_T) if self.model.driver is not None else 0.0
         self.initial = self.model.initial_state()
         self.state = self.initial.copy()
         ob = scene.observe
@@ -63,8 +65,7 @@ class Simulation:
     # ---------------------------------------------------------------- command
     @property
     def omega_T(self) -> float:
-        d = self.model.driver
-        return d.omega if d is not None else 0.0
+        return self._omega
 
     @property
     def has_drive(self) -> bool:
@@ -75,10 +76,9 @@ class Simulation:
         """Set the motor (or clamp) speed in rad/s; takes effect at the next step."""
         if not math.isfinite(omega_T):
             raise ValueError(f"omega_T must be finite, got {omega_T!r}")
-        d = self.model.driver
-        if d is None:
+        if self.model.driver is None:
             raise ValueError("this scene has no motor or clamp effect to command")
-        d.omega = float(omega_T)
+        self._omega = float(omega_T)
 
     # ---------------------------------------------------------------- stepping
     @property
@@ -91,9 +91,9 @@ class Simulation:
         past t_end). Raises StepFailed and keeps the state if Newton fails."""
         w0 = time.perf_counter()
         if dt is None and self.stepper.adaptive:
-            new, stats = self.stepper.step_adaptive(self.state, t_end)
+            new, stats = self.stepper.step_adaptive(self.state, t_end, self._omega)
         else:
-            new, stats = self.stepper.step(self.state, self.dt if dt is None else dt)
+            new, stats = self.stepper.step(self.state, self.dt if dt is None else dt, self._omega)
         self.observer.record(self.state, new)
         self._prev_state = self.state
         self.state = new
@@ -145,7 +145,7 @@ class Simulation:
         self._prev_state = None
         self.stepper.reset()
         if self.model.driver is not None:
-            self.model.driver.omega = self.scene.omega_T
+            self._omega = float(self.scene.omega_T)
         self.observer.reset(self.state)
         self.steady_detector.reset()
         self._zero_counters()

@@ -303,18 +303,18 @@ class Stepper:
     def adaptive(self) -> bool:
         return self.rtol > 0.0
 
-    def _turn_limit(self) -> float:
-        """Largest step (s) for which the drive turns at most max_turn."""
-        d = self.model.driver
-        w = abs(d.omega) if d is not None else 0.0
+    def _turn_limit(self, omega: float) -> float:
+        """Largest step (s) for which the drive, commanded at ``omega`` (rad/s), turns at most max_turn."""
+        w = abs(omega) if self.model.driver is not None else 0.0
         return self.max_turn / w if w > 0.0 else math.inf
 
     # ------------------------------------------------------------------ fixed steps
-    def step(self, state: State, dt: float) -> tuple[State, StepStats]:
-        """Advance by exactly dt: in equal sub-steps if the drive would turn more than max_turn, halved (then
-        grown back) where Newton fails."""
+    def step(self, state: State, dt: float, omega: float = 0.0) -> tuple[State, StepStats]:
+        """Advance by exactly dt with the drive commanded at ``omega`` (rad/s; ignored without a driver): in
+        equal sub-steps if the drive would turn more than max_turn, halved (then grown back) where Newton
+        fails."""
         stats = StepStats(dt_min=dt)
-        n_turn = max(1, math.ceil(dt / self._turn_limit() - 1e-9))
+        n_turn = max(1, math.ceil(dt / self._turn_limit(omega) - 1e-9))
         h_cap = dt / n_turn
         remaining = dt
         h = h_cap
@@ -323,7 +323,7 @@ class Stepper:
             h = min(h, remaining)
             if remaining - h < 1e-9 * dt:   # do not leave a sliver behind
                 h = remaining
-            new = self._attempt(cur, h, stats)
+            new = self._attempt(cur, h, stats, omega)
             if new is None:
                 h *= 0.5
                 stats.reductions += 1
@@ -341,12 +341,12 @@ class Stepper:
         return cur, stats
 
     # ------------------------------------------------------------------ error-controlled steps
-    def step_adaptive(self, state: State, t_end: float = math.inf) -> tuple[State, StepStats]:
-        """One accepted step whose local error estimate is within (rtol, atol); its size is chosen by the
-        controller (never beyond t_end, time.dt or the turn limit). The next size is proposed in the new
-        state's ``h_next``."""
+    def step_adaptive(self, state: State, t_end: float = math.inf, omega: float = 0.0) -> tuple[State, StepStats]:
+        """One accepted step whose local error estimate is within (rtol, atol), the drive commanded at ``omega``
+        (rad/s); its size is chosen by the controller (never beyond t_end, time.dt or the turn limit). The next
+        size is proposed in the new state's ``h_next``."""
         p = self.integrator.order
-        h = min(state.h_next or self.dt_max, self.dt_max, self._turn_limit())
+        h = min(state.h_next or self.dt_max, self.dt_max, self._turn_limit(omega))
         h_end = t_end - state.t
         if h >= h_end:
             h = h_end
@@ -354,7 +354,7 @@ class Stepper:
             h = 0.5 * h_end       # two similar steps rather than a long one and a sliver
         stats = StepStats(dt_min=h)
         while True:
-            new = self._attempt(state, h, stats)
+            new = self._attempt(state, h, stats, omega)
             if new is None:
                 factor = 0.25
                 stats.reductions += 1
@@ -519,8 +519,9 @@ class Stepper:
         self._factored_pose = self._pose(ctx.q)
         return True
 
-    def _attempt(self, state: State, h: float, stats: StepStats) -> State | None:
-        """One Newton solve of a step of size h from ``state``; None if it does not converge.
+    def _attempt(self, state: State, h: float, stats: StepStats, omega: float) -> State | None:
+        """One Newton solve of a step of size h from ``state``, the drive commanded at ``omega``; None if it
+        does not converge.
 
         The Jacobian is evaluated and factorised lazily: most steps converge on the predictor and need none,
         and a factorisation made for an earlier step (the Jacobian of a steadily turning robot changes by
@@ -528,8 +529,7 @@ class Stepper:
         when one does not, that correction is discarded and a fresh Jacobian is factorised where the iterate is.
         Corrections with a fresh Jacobian are Newton steps with the line search."""
         model = self.model
-        d = model.driver
-        angle = state.drive_angle + (d.omega * h if d is not None else 0.0)
+        angle = state.drive_angle + (omega * h if model.driver is not None else 0.0)
         plan = self.integrator.plan(state, h, angle)
         q = self.predict(state, h)
         model.prescribe(q, state, angle)
