@@ -42,7 +42,7 @@ def test_a_run_after_the_warm_up_compiles_nothing():
 
 
 def test_every_effect_names_kernel_groups_that_exist_and_every_group_is_used():
-    used = set(warmup.MODEL_GROUPS) | {"time_stepping", "arrow"}
+    used = set(warmup.MODEL_GROUPS) | {"time_stepping", "arrow", "newton"}
     for cls in EFFECT_TYPES.values():
         assert set(cls.kernel_groups) <= set(warmup.GROUPS), cls.name
         used |= set(cls.kernel_groups)

@@ -36,6 +36,11 @@ def speed_arguments(ap) -> None:
     ap.add_argument("--no-steady", action="store_true",
                     help="skip the direct steady solver against time-stepping to the same steady state")
     ap.add_argument("--quick", action="store_true", help="fewer cases and repeats")
+    ap.add_argument("--against", default=None, metavar="DIR",
+                    help="only compare whole processes side by side: this checkout against the flagbot_sim in DIR "
+                         "(e.g. a `git worktree` of an older commit, its kernel cache warmed first), in alternating "
+                         "pairs, printing each command's ratio")
+    ap.add_argument("--pairs", type=int, default=3, help="--against: pairs of runs per command (median reported)")
 
 
 def startup_arguments(ap) -> None:

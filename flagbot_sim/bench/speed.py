@@ -155,7 +155,67 @@ def format_scaling(rows, fit_step, fit_newton) -> str:
     return "\n".join(lines)
 
 
+#: whole processes as users run them (issue 24's targets): the 300 s design 1, n = 3 run at 150 rpm, and the
+#: two designs from rest with their defaults
+SIDE_BY_SIDE = (("design1 n=3 150 rpm 300 s", ["run", "design1", "--set", "robot.n_flagella=3", "--set",
+                                              "motor.omega_rpm=150", "--duration", "300"]),
+                ("run design1", ["run", "design1"]),
+                ("run design2 n=3", ["run", "design2", "--set", "robot.n_flagella=3"]))
+
+
+def _timed(root: str, argv: list[str]) -> tuple[float, float]:
+    """(wall, CPU) seconds of ``python -m flagbot_sim ARGV`` with the package from ``root``, as a whole process."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, PYTHONPATH=root)
+    t0 = time.perf_counter()
+    p = subprocess.Popen([sys.executable, "-m", "flagbot_sim", *argv], env=env, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t0
+    p.returncode = os.waitstatus_to_exitcode(status)
+    if p.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv)} with PYTHONPATH={root} exited with {p.returncode}")
+    return wall, usage.ru_utime + usage.ru_stime
+
+
+def side_by_side(against: str, pairs: int = 3, commands=SIDE_BY_SIDE) -> str:
+    """Each command as a whole process with this checkout's package and with the one in ``against``, in
+    alternating pairs (after one untimed run of each, so both kernel caches are warm): medians of wall and CPU
+    seconds and of the pair-by-pair ratio old / new, and the load average before and after."""
+    import os
+    from pathlib import Path
+    here = str(Path(__file__).resolve().parents[2])
+    load0 = os.getloadavg()
+    lines = [f"side by side, whole processes: new = {here}, old = {against}; {pairs} pairs per command, "
+             f"alternating; median (min..max)",
+             f"{'command':28s} {'old wall s':>10s} {'new wall s':>10s} {'old/new wall':>20s} {'old/new CPU':>20s}"]
+    for label, argv in commands:
+        _timed(here, argv)
+        _timed(against, argv)
+        rows = []
+        for i in range(pairs):
+            order = (against, here) if i % 2 == 0 else (here, against)
+            got = {root: _timed(root, argv) for root in order}
+            rows.append((got[against], got[here]))
+        wall = sorted(o[0] / n[0] for o, n in rows)
+        cpu = sorted(o[1] / n[1] for o, n in rows)
+        lines.append(f"{label:28s} {statistics.median(o[0] for o, _ in rows):10.2f} "
+                     f"{statistics.median(n[0] for _, n in rows):10.2f} "
+                     f"{statistics.median(wall):7.2f} ({wall[0]:.2f}..{wall[-1]:.2f}) "
+                     f"{statistics.median(cpu):7.2f} ({cpu[0]:.2f}..{cpu[-1]:.2f})")
+        print(lines[-1], flush=True)
+    load1 = os.getloadavg()
+    lines.append(f"load average (1, 5, 15 min) before {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, after "
+                 f"{load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} CPUs")
+    return "\n".join(lines)
+
+
 def run(args) -> int:
+    if args.against:
+        print(side_by_side(args.against, args.pairs))
+        return 0
     cases = CASES[:2] + CASES[3:5] if args.quick else CASES
     repeat = 1 if args.quick else args.repeat
     results = []

@@ -15,3 +15,61 @@ from numba import njit
 
 kernel = njit(cache=True, no_cfunc_wrapper=True)
 stage = njit(cache=True, no_cfunc_wrapper=True, no_cpython_wrapper=True)
+
+
+# ----------------------------------------------------------------------------------------------- calls by address
+# A compiled function that calls a kernel directly links the kernel's code into its own and has LLVM optimise
+# and generate all of it again (a caller of the bend-twist kernel alone compiled ~1.3 s). Calling it by address
+# instead, through numba's first-class function type with the kernel's own (native) calling convention, costs
+# the caller nothing of the kernel's compile and keeps one machine code of every kernel in the process; the
+# address is an argument (an int64) of the caller, so the caller's cached code holds no address.
+_SPEC = None
+
+
+def signature(spec: str):
+    """A numba signature from a compact spec, "RET ARG ARG ...": f1 f2 f3 / i1 i2 i3 / n1 C-contiguous float64 /
+    int64 / int32 arrays of that many dimensions, f i b float64 int64 boolean scalars, - none, and "( ... )" a
+    tuple of those (the type numba gives a Python tuple of such values)."""
+    global _SPEC
+    from numba import types as t
+    if _SPEC is None:
+        _SPEC = {"f1": t.float64[::1], "f2": t.float64[:, ::1], "f3": t.float64[:, :, ::1], "i1": t.int64[::1],
+                 "i2": t.int64[:, ::1], "i3": t.int64[:, :, ::1], "n1": t.int32[::1], "f": t.float64,
+                 "i": t.int64, "b": t.boolean, "-": t.none}
+    stack = [[]]
+    for tok in spec.replace("(", " ( ").replace(")", " ) ").split():
+        if tok == "(":
+            stack.append([])
+        elif tok == ")":
+            members = stack.pop()
+            stack[-1].append(t.Tuple(members))
+        else:
+            stack[-1].append(_SPEC[tok])
+    ret, *args = stack[0]
+    return ret(*args)
+
+
+def function_at(spec: str):
+    """A compiled helper ``f = at(address)`` that turns an int64 address of a kernel compiled for the signature
+    ``spec`` (see :func:`signature`) into a callable with that signature (exceptions propagate as from a direct
+    call). The address comes from :func:`address`."""
+    from numba import types
+    from numba.core import cgutils
+    from numba.core.extending import intrinsic
+    fnty = types.FunctionType(signature(spec))
+
+    @intrinsic
+    def at(typingctx, addr):
+        def codegen(context, builder, sig, args):
+            f = cgutils.create_struct_proxy(fnty)(context, builder)
+            f.jit_addr = builder.inttoptr(args[0], cgutils.voidptr_t)
+            return f._getvalue()
+        return fnty(types.int64), codegen
+    return at
+
+
+def address(dispatcher, spec: str) -> int:
+    """The address of ``dispatcher``'s machine code for the signature ``spec`` (compiled or loaded first if this
+    process has not yet)."""
+    from numba.experimental.function_type import _get_jit_address
+    return int(_get_jit_address(dispatcher, signature(spec)))

@@ -24,6 +24,7 @@ from .frames import EdgeFrames, cross3
 from .jit import kernel
 from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State, StepPlan
+from .newton import CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, supported
 
 
 class StepFailed(RuntimeError):
@@ -136,15 +137,6 @@ VELOCITY_ERROR_EVERY = 4
 #: velocity turns by omega h / 2: 3/2
 VELOCITY_GAIN = {2: 11.0 / 9.0, 1: 1.5}
 
-#: a correction with a kept (not fresh) factorisation is accepted if it shrinks the residual at least this much
-CHORD_CONTRACTION = 0.25
-#: ... and used further only while the contraction it shows would reach the tolerance in this many more corrections
-CHORD_MAX_MORE = 2.0
-#: a converged iterate reached with a kept factorisation gets one more correction unless its residual is below
-#: this fraction of the tolerance
-CHORD_DEEPEN = 0.5
-#: a factorisation made for dv/dq = 1/h ... serves steps whose coefficient differs by less than this (relative)
-REUSE_DV_CHANGE = 0.15
 
 
 # ----------------------------------------------------------------------------------------------- predictor
@@ -295,9 +287,16 @@ class Stepper:
                                              np.where(self._norm_twist, ell * ell, 0.0)])
         self._norm_count = int(self._free_nodes.sum() + self._norm_twist.sum())
         self._fixed_steps = 0             # fixed steps taken (the velocity error's sampling)
-        self._factored_dv = None          # integrator coefficient of the factorisation the solver holds
-        self._factored_pose = np.eye(3)   # and the robot's pose it was made at (see _rotated_solve)
+        # the factorisation the solver holds: [kept (1) or not (0), the integrator coefficient it was made for],
+        # and the robot's pose it was made at (see _rotated_solve); shared with the compiled solve
+        self._kept = np.zeros(2)
+        self._kept_pose = np.eye(3)
         self._rim = int(net.edges[net.plate_edges[0], 1])
+        #: the compiled Newton solve of a step (newton.py), or None where it does not apply (scipy's sparse LU,
+        #: an effect without a compiled term): then the Python loop of _attempt runs
+        self._newton = (StepNewton(model, self.solver, self._axis_nodes, self._rim, self._kept,
+                                   self._kept_pose.reshape(9))
+                        if supported(model, self.solver) else None)
 
     @property
     def adaptive(self) -> bool:
@@ -460,7 +459,7 @@ class Stepper:
 
     def reset(self) -> None:
         """Forget the Jacobian kept from earlier steps (a run restarted from its beginning repeats itself)."""
-        self._factored_dv = None
+        self._kept[0] = 0.0
         self._fixed_steps = 0
 
     def _pose(self, q: np.ndarray) -> np.ndarray:
@@ -490,7 +489,7 @@ class Stepper:
         are frame-relative and do not turn): J_now^-1 r = R J_then^-1 (R^T r). Without the turn, a factorisation
         a step old is off by the stiff parts' stiffness times omega h and contracts nothing."""
         N = self.model.net.n_nodes
-        R = self._pose(q) @ self._factored_pose.T
+        R = self._pose(q) @ self._kept_pose.T
         b = r.copy()
         bx = b[: 3 * N].reshape(N, 3)
         bx[:] = bx @ R                      # R^T applied to every node's 3-vector (rows)
@@ -502,21 +501,20 @@ class Stepper:
     def _reusable(self, plan: StepPlan) -> bool:
         """Whether the factorised Jacobian kept from an earlier step can serve this one: it was made for nearly
         the same integrator coefficient (the 1/h in dv/dq, which dominates how the Jacobian changes with h)."""
-        f = self._factored_dv
-        return f is not None and abs(plan.dv_dq / f - 1.0) < REUSE_DV_CHANGE
+        return self._kept[0] > 0.0 and abs(plan.dv_dq / self._kept[1] - 1.0) < REUSE_DV_CHANGE
 
     def _factor(self, ctx, plan: StepPlan, stats: StepStats) -> bool:
         J = self.model.jacobian(ctx)
         J[self._fix_slots] = 0.0
         J[self._fix_diag] = 1.0
         stats.jacobians += 1
-        self._factored_dv = None
+        self._kept[0] = 0.0
         try:
             self.solver.factor(J)
         except SingularJacobian:
             return False
-        self._factored_dv = plan.dv_dq
-        self._factored_pose = self._pose(ctx.q)
+        self._kept[:] = 1.0, plan.dv_dq
+        self._kept_pose[:] = self._pose(ctx.q)
         return True
 
     def _attempt(self, state: State, h: float, stats: StepStats, omega: float) -> State | None:
@@ -533,6 +531,24 @@ class Stepper:
         plan = self.integrator.plan(state, h, angle)
         q = self.predict(state, h)
         model.prescribe(q, state, angle)
+        if self._newton is not None:
+            st = self._newton.stats
+            st[:] = 0.0
+            try:
+                ok, its, q_new, v_new, (t, _, d1, d2, rt) = self._newton.solve(
+                    q.copy(), state.frames, plan, self.tol, self.max_iterations)
+            except ZeroDivisionError:
+                pass            # a folded iterate: the loop below rejects it as a non-finite trial instead
+            else:
+                stats.residual = float(st[0])
+                stats.line_search_cuts += int(st[1])
+                stats.jacobians += int(st[2])
+                stats.chord_rejections += int(st[3])
+                if not ok:
+                    return None
+                stats.newton_iterations += its
+                return State(plan.t, q_new, v_new, EdgeFrames(t, d1, d2, rt), plan.drive_angle, plan.h, state.h,
+                             state.q, state.v, state.q_prev)
         ctx, r = self._trial(q, state, plan)
         fresh = False                    # the factorisation in hand was made at an iterate of this attempt
         chord = self._reusable(plan)     # ... or, usable as it is, at an earlier step

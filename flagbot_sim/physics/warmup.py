@@ -179,6 +179,13 @@ def _warm_clamp() -> None:
     twist_for_director(d1[e], t[e], t[e], d1[e] @ np.eye(3).T, q[e])
 
 
+def _warm_newton() -> None:
+    """The compiled Newton solve of a time step (it calls the other groups' kernels by address, so it compiles
+    without them)."""
+    from .newton import compile_newton
+    compile_newton()
+
+
 @dataclass(frozen=True)
 class Group:
     name: str
@@ -206,6 +213,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
     _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
     _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
     _group(_warm_spin_drag, ("elastic.tangent_torques",), 0.5),
+    _group(_warm_newton, ("newton._newton",), 3.5),
 )}
 
 #: what every model needs: its frames and its springs
@@ -220,7 +228,8 @@ HELPER_START = {"fork": 0.4, "spawn": 1.1}
 def groups_for(scene, time_stepping: bool = True) -> list[str]:
     """The kernel groups a model of ``scene`` uses: its frames and springs, its effects' kernels, and for a
     time-stepped simulation (``time_stepping``) the predictor, the observer and, unless the scene asks for
-    scipy's sparse LU, the arrow solver. A steady solve (``time_stepping=False``) uses none of those three."""
+    scipy's sparse LU, the arrow solver and the compiled Newton solve of a step (newton.py). A steady solve
+    (``time_stepping=False``) uses none of those."""
     from .effects import EFFECT_TYPES
     names = list(MODEL_GROUPS)
     for effect in scene.effects:
@@ -228,7 +237,7 @@ def groups_for(scene, time_stepping: bool = True) -> list[str]:
     if time_stepping:
         names.append("time_stepping")
         if scene.numerics.linear_solver != "splu":
-            names.append("arrow")
+            names.extend(("arrow", "newton"))
     return list(dict.fromkeys(names))
 
 
