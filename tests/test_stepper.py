@@ -114,3 +114,39 @@ def test_rigid_parts_stay_rigid_without_slowing_newton(rigid_factor):
     stretch = np.abs(el.stretch_strain(fr))
     flex = stretch[net.edge_elastic].max()
     assert stretch[~net.edge_elastic].max() < 10.0 / rigid_factor * max(flex, 1e-9) + 1e-12
+
+
+def test_the_drive_command_is_an_argument_of_the_step_not_state_of_the_motor():
+    """Two steps from one state with two commands: each turns the drive by its own omega h, and the motor effect
+    holds no command (nothing a step could leave behind for the next one)."""
+    sim = small_robot()
+    sim.run(0.05)
+    state, st, h = sim.state, sim.stepper, sim.dt
+    a, _ = st.step(state, h, 3.0)
+    b, _ = st.step(state, h, -5.0)
+    assert a.drive_angle == pytest.approx(state.drive_angle + 3.0 * h, rel=0, abs=1e-12)
+    assert b.drive_angle == pytest.approx(state.drive_angle - 5.0 * h, rel=0, abs=1e-12)
+    assert not hasattr(sim.model.driver, "omega")
+
+
+@pytest.mark.parametrize("scene,extra", [
+    ("design1", ["robot.n_flagella=3", "motor.omega_rpm=150"]),
+    ("clamped_flagellum", []),
+    ("design1", ["scene.preset='fast'"]),          # error-controlled steps, rejections
+    ("design2", ["scene.effects=['inertia','rft','head_drag','head_torque','motor','granular_yield','gravity']"]),
+])
+def test_the_compiled_newton_solve_gives_the_python_loops_numbers_to_the_last_bit(scene, extra):
+    """The compiled solve of a step (physics/newton.py) and the stepper's Python loop take the same decisions
+    with the same arithmetic: the same states bit for bit, the same counts."""
+    runs = []
+    for compiled in (True, False):
+        sim = Simulation(load_scene(scene, extra))
+        assert (sim.stepper._newton is not None) is True
+        if not compiled:
+            sim.stepper._newton = None
+        sim.run(1.0)
+        runs.append((sim.state, sim.newton_iterations, sim.reductions, sim.steps))
+    (a, *na), (b, *nb) = runs
+    assert na == nb
+    for x, y in ((a.q, b.q), (a.v, b.v), (a.frames.d1, b.frames.d1), (a.frames.ref_twist, b.frames.ref_twist)):
+        assert np.array_equal(x, y)

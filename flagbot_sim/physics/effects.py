@@ -518,7 +518,8 @@ class GranularYield(Effect):
 
     def _velocities(self, ctx):
         v = ctx.v[self.dofs]                                       # (3, 3)
-        return v, np.sqrt(np.einsum("ki,ki->k", v, v) + self.eps2)
+        # the sum in the order the compiled step forms it (physics/newton.py)
+        return v, np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2] + self.eps2)
 
     def add_force(self, ctx, r):
         v, s = self._velocities(ctx)

@@ -188,6 +188,13 @@ def _norms(r, scale):
     return (math.nan if nan else mx), math.sqrt(ss)
 
 
+@kernel
+def residual_norms(r, scale):
+    """(largest scaled entry, Euclidean norm of the scaled residual): the stepper's Python loop uses the compiled
+    solve's own sums, so that the two take the same decisions."""
+    return _norms(r, scale)
+
+
 @stage
 def _pose(q, i0, i2, rim, P):
     """The robot's pose into P (3x3; columns: the axis, the first plate rim's direction from it, their cross

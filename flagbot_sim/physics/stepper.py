@@ -20,11 +20,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import warmup
 from .frames import EdgeFrames, cross3
 from .jit import kernel
 from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State, StepPlan
-from .newton import CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, supported
+from .newton import (CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, residual_norms,
+                     supported)
 
 
 class StepFailed(RuntimeError):
@@ -293,10 +295,11 @@ class Stepper:
         self._kept_pose = np.eye(3)
         self._rim = int(net.edges[net.plate_edges[0], 1])
         #: the compiled Newton solve of a step (newton.py), or None where it does not apply (scipy's sparse LU,
-        #: an effect without a compiled term): then the Python loop of _attempt runs
+        #: an effect without a compiled term) or is not compiled yet (a first run: warmup compiles it in the
+        #: background): then the Python loop of _attempt runs, with the same numbers to the last bit
         self._newton = (StepNewton(model, self.solver, self._axis_nodes, self._rim, self._kept,
                                    self._kept_pose.reshape(9))
-                        if supported(model, self.solver) else None)
+                        if supported(model, self.solver) and warmup.loaded("newton") else None)
 
     @property
     def adaptive(self) -> bool:
@@ -489,13 +492,16 @@ class Stepper:
         are frame-relative and do not turn): J_now^-1 r = R J_then^-1 (R^T r). Without the turn, a factorisation
         a step old is off by the stiff parts' stiffness times omega h and contracts nothing."""
         N = self.model.net.n_nodes
-        R = self._pose(q) @ self._kept_pose.T
+        P, F = self._pose(q), self._kept_pose
+        # R = P F^T, and the rows' turns below, as sums of products in the order the compiled solve forms them
+        # (newton._rotated_solve), so that both give the same numbers to the last bit
+        R = P[:, None, 0] * F[None, :, 0] + P[:, None, 1] * F[None, :, 1] + P[:, None, 2] * F[None, :, 2]
         b = r.copy()
         bx = b[: 3 * N].reshape(N, 3)
-        bx[:] = bx @ R                      # R^T applied to every node's 3-vector (rows)
+        bx[:] = bx[:, 0, None] * R[0] + bx[:, 1, None] * R[1] + bx[:, 2, None] * R[2]   # R^T on every node's row
         x = self.solver.solve(b)
         xx = x[: 3 * N].reshape(N, 3)
-        xx[:] = xx @ R.T
+        xx[:] = xx[:, 0, None] * R[:, 0] + xx[:, 1, None] * R[:, 1] + xx[:, 2, None] * R[:, 2]
         return x
 
     def _reusable(self, plan: StepPlan) -> bool:
@@ -572,13 +578,12 @@ class Stepper:
                 return self._accept(state, plan, ctx, stats, it)
             if it == self.max_iterations:
                 return None
-            merit0 = float(np.linalg.norm(r * self._scale))
+            merit0 = residual_norms(r, self._scale)[1]
             if chord:
                 dq = -self._rotated_solve(r, q)
                 q_try = q + dq
                 ctx_try, r_try = self._trial(q_try, state, plan)
-                m = float(np.linalg.norm(r_try * self._scale))
-                m_max = self._norm(r_try)
+                m_max, m = residual_norms(r_try, self._scale)
                 # a correction that reaches the tolerance is taken whatever its contraction (a residual already
                 # near the tolerance cannot shrink 4x above round-off: BDF2's predictor often starts there)
                 if np.all(np.isfinite(dq)) and math.isfinite(m) and (m <= CHORD_CONTRACTION * merit0 or
@@ -606,7 +611,7 @@ class Stepper:
             while True:
                 q_try = q + alpha * dq
                 ctx_try, r_try = self._trial(q_try, state, plan)
-                m = float(np.linalg.norm(r_try * self._scale))
+                m = residual_norms(r_try, self._scale)[1]
                 if math.isfinite(m) and m < (1.0 - 1e-4 * alpha) * merit0:
                     break
                 # Watchdog: a full step along a rigid rotation stretches the stiff parts by R*angle^2/2, so the

@@ -106,11 +106,13 @@ def _warm_time_stepping() -> None:
     """What a time-stepped Simulation adds to the model: the predictor and the observer's spin angle."""
     from .frames import angle3
     from .model import State
+    from .newton import residual_norms
     from .stepper import axis_nodes, predict
     net, q, x, t, length, d1, d2 = _tiny_network()
     v = np.zeros_like(q)
     st = State(0.0, q, v, None, 0.0, 1e-2, 1e-2, q.copy(), v.copy(), q.copy())
     predict(st, 1e-2, axis_nodes(net), net.n_nodes)
+    residual_norms(v, v)
     u, w = d1[0], d2[0]
     angle3(u[0], u[1], u[2], w[0], w[1], w[2], t[0, 0], t[0, 1], t[0, 2])
 
@@ -196,10 +198,15 @@ class Group:
     #: the split between the two processes and the estimate of the time left use it, so it need not be exact
     weight: float
     doc: str
+    #: a speed-up with a slower equivalent (the compiled Newton step: the stepper's Python loop gives the same
+    #: numbers to the last bit): a scene's run never waits for its compile; when its cache is cold, a background
+    #: process compiles it for the runs after this one (see ensure_compiled)
+    background: bool = False
 
 
-def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float) -> Group:
-    return Group(warm.__name__.removeprefix("_warm_"), warm, kernels, weight, (warm.__doc__ or "").strip())
+def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float, background: bool = False) -> Group:
+    return Group(warm.__name__.removeprefix("_warm_"), warm, kernels, weight, (warm.__doc__ or "").strip(),
+                 background)
 
 
 #: every kernel group, by name. Effects name theirs in ``Effect.kernel_groups``.
@@ -207,13 +214,13 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
     _group(_warm_frames, ("frames._trial_frames",), 0.45),
     _group(_warm_stretch, ("elastic._stretch",), 0.25),
     _group(_warm_bend_twist, ("elastic._bend_twist",), 3.4),
-    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3"), 0.55),
+    _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3", "newton.residual_norms"), 0.6),
     _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.15),
     _group(_warm_rft, ("effects.rft",), 0.35),
     _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
     _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
     _group(_warm_spin_drag, ("elastic.tangent_torques",), 0.5),
-    _group(_warm_newton, ("newton._newton",), 3.5),
+    _group(_warm_newton, ("newton._newton",), 3.5, background=True),
 )}
 
 #: what every model needs: its frames and its springs
@@ -271,12 +278,23 @@ def cache_is_warm(groups: Iterable[str] | None = None) -> bool:
 
 
 # ----------------------------------------------------------------------------------------------- compiling
+def loaded(group: str) -> bool:
+    """Whether the group's kernels are loaded in this process (a background group may not be: see
+    ensure_compiled)."""
+    return group in _LOADED
+
+
 def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterable[str] | None = None) -> float:
     """Compile or load the kernel groups (default: every group) into this process; returns the seconds it took
     (0 if they were all loaded already).
 
     ``notify`` receives the lines shown while the cache is cold (default: stderr): one that says the kernels
-    are being compiled, then one per finished group with the seconds so far and an estimate of the time left."""
+    are being compiled, then one per finished group with the seconds so far and an estimate of the time left.
+
+    A background group (``Group.background``) among the ``groups`` a caller names is loaded if its cache is
+    warm; if it is cold this process goes on without it and a background process compiles it into the cache
+    (after this process's own compile), for the next run. With ``groups=None`` (``flagbot compile``, dev.py)
+    every group is compiled here."""
     from numba.core import config
     wanted = [g for g in (GROUPS if groups is None else dict.fromkeys(groups)) if g not in _LOADED]
     if not wanted:
@@ -286,13 +304,67 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
         _LOADED.update(wanted)
         return time.perf_counter() - t0
     cold = [g for g in wanted if not cache_is_warm([g])]
+    later = [g for g in cold if groups is not None and GROUPS[g].background]
+    cold = [g for g in cold if g not in later]
     if cold:
         _Compile(cold, notify or _stderr, t0).run()
     for g in wanted:                              # loads what is cached (or compiles what the helper failed to)
-        if g not in _LOADED:
+        if g not in _LOADED and g not in later:
             GROUPS[g].warm()
             _LOADED.add(g)
+    if later:
+        _compile_in_background(later)
     return time.perf_counter() - t0
+
+
+def _compile_in_background(groups: list[str]) -> None:
+    """Compile the groups into the cache in a detached, low-priority process that outlives this one if need be
+    (its output discarded; one at a time: a second finds the first's lock taken and ends at once)."""
+    try:
+        if _single_threaded_linux():
+            pid = os.fork()
+            if pid == 0:                          # the child: its own session, no terminal, no inherited output
+                code = 1
+                try:
+                    os.setsid()
+                    devnull = os.open(os.devnull, os.O_RDWR)
+                    for fd in (0, 1, 2):
+                        os.dup2(devnull, fd)
+                    _background(groups)
+                    code = 0
+                finally:
+                    os._exit(code)
+            threading.Thread(target=_reap, args=(pid,), daemon=True).start()
+        else:
+            subprocess.Popen([sys.executable, "-m", "flagbot_sim.physics.warmup", "--background", *groups],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                             start_new_session=True, env=dict(os.environ))
+    except OSError:
+        pass                                      # no process to spare: a later run tries again
+
+
+def _reap(pid: int) -> None:
+    try:
+        os.waitpid(pid, 0)
+    except ChildProcessError:
+        pass
+
+
+def _background(groups: list[str]) -> None:
+    """In the background process: compile the groups unless another process is at it already."""
+    import fcntl
+    os.nice(10)
+    lock_dir = os.path.dirname(_dispatchers(groups)[0]._cache._cache_path)
+    os.makedirs(lock_dir, exist_ok=True)
+    with open(os.path.join(lock_dir, "flagbot_background.lock"), "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return
+        with _fewer_collections():
+            for g in groups:
+                if not cache_is_warm([g]):
+                    GROUPS[g].warm()
 
 
 def _stderr(msg: str) -> None:
@@ -514,4 +586,7 @@ def _compile_groups(groups: list[str], out) -> None:
 
 
 if __name__ == "__main__":               # the helper process when it is not forked
-    _compile_groups(sys.argv[1:], sys.stdout)
+    if sys.argv[1:2] == ["--background"]:
+        _background(sys.argv[2:])
+    else:
+        _compile_groups(sys.argv[1:], sys.stdout)
