@@ -36,7 +36,7 @@ class Simulation:
         self.compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene))
         self.scene = scene
         self.model = RobotModel(scene)
-        self.stepper = Stepper(self.model)
+        self.stepper = Stepper(self.model, compiled=warmup.loaded("newton"))
         self.dt = scene.time.dt
         #: the drive command in force (rad/s): an argument of every step, not state of the driver effect
         self._omega = float(scene.omega_T) if self.model.driver is not None else 0.0

@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import warmup
 from .frames import EdgeFrames, cross3
 from .jit import kernel
 from .linsolve import SingularJacobian, make_solver
@@ -253,7 +252,7 @@ class Stepper:
     (``time.max_turn``): a step never turns the motor further, so no speed aliases (at 5000 rpm and dt = 1e-2 s
     the motor would turn 5.2 rad per step and the run would show the 1000-rpm state mirrored)."""
 
-    def __init__(self, model: RobotModel, integrator: str | None = None):
+    def __init__(self, model: RobotModel, integrator: str | None = None, compiled: bool = False):
         self.model = model
         tm = model.scene.time
         self.integrator = INTEGRATORS[integrator or tm.integrator]()
@@ -294,12 +293,13 @@ class Stepper:
         self._kept = np.zeros(2)
         self._kept_pose = np.eye(3)
         self._rim = int(net.edges[net.plate_edges[0], 1])
-        #: the compiled Newton solve of a step (newton.py), or None where it does not apply (scipy's sparse LU,
-        #: an effect without a compiled term) or is not compiled yet (a first run: warmup compiles it in the
-        #: background): then the Python loop of _attempt runs, with the same numbers to the last bit
+        #: the compiled Newton solve of a step (newton.py) if ``compiled`` (its kernel loaded: the Simulation asks
+        #: physics.warmup, which compiles it in the background on a first run), or None, also where it does not
+        #: apply (scipy's sparse LU, an effect without a compiled term): then the Python loop of _attempt runs,
+        #: with the same numbers to the last bit
         self._newton = (StepNewton(model, self.solver, self._axis_nodes, self._rim, self._kept,
                                    self._kept_pose.reshape(9))
-                        if supported(model, self.solver) and warmup.loaded("newton") else None)
+                        if compiled and supported(model, self.solver) else None)
 
     @property
     def adaptive(self) -> bool:
