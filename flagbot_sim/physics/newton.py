@@ -195,10 +195,11 @@ def residual_norms(r, scale):
     return _norms(r, scale)
 
 
-@stage
-def _pose(q, i0, i2, rim, P):
-    """The robot's pose into P (3x3; columns: the axis, the first plate rim's direction from it, their cross
-    product): what relates the Jacobians of two configurations of a turning robot (Stepper._pose)."""
+@kernel
+def robot_pose(q, i0, i2, rim, P):
+    """The robot's pose into P (9: 3x3 row-major; columns: the axis through the nodes i0 -> i2, the plate rim
+    node's direction from it, their cross product): an orthonormal frame that turns with the robot, what relates
+    the Jacobians of two configurations of a turning robot (the stepper's Python loop calls it too)."""
     o = 3 * i2
     if i0 != i2:
         a0, a1, a2 = q[o] - q[3 * i0], q[o + 1] - q[3 * i0 + 1], q[o + 2] - q[3 * i0 + 2]
@@ -223,7 +224,7 @@ def _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, x, buf, ab_off, a
                    z, iw):
     """x = R J_then^-1 (R^T r) with the kept factorisation, R the turn from its pose (``kept_pose``, 3x3 row-major)
     to q's (Stepper._rotated_solve)."""
-    _pose(q, i0, i2, rim, P)
+    robot_pose(q, i0, i2, rim, P)
     R = np.empty(9)
     for i in range(3):
         for j in range(3):
@@ -394,7 +395,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
                     break
                 kept[0] = 1.0
                 kept[1] = dv
-                _pose(q, i0, i2, rim, kept_pose)
+                robot_pose(q, i0, i2, rim, kept_pose)
                 fresh = True
             next_ = _LINE
         _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, dx, buf, ab_off, ab_rows, ab_cols, kl, ku, C_off,

@@ -25,7 +25,7 @@ from .jit import kernel
 from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State, StepPlan
 from .newton import (CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, residual_norms,
-                     supported)
+                     robot_pose, supported)
 
 
 class StepFailed(RuntimeError):
@@ -468,21 +468,10 @@ class Stepper:
     def _pose(self, q: np.ndarray) -> np.ndarray:
         """Orthonormal frame (3x3, columns: axis, the first plate rim's direction from it, their cross product)
         that turns with the robot: what relates the Jacobian of two configurations of a turning robot."""
-        i0, i1, i2 = self._axis_nodes
-        o = 3 * i2
-        if i0 != i2:
-            a0, a1, a2 = q[o] - q[3 * i0], q[o + 1] - q[3 * i0 + 1], q[o + 2] - q[3 * i0 + 2]
-        else:
-            a0, a1, a2 = 1.0, 0.0, 0.0
-        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-        a0, a1, a2 = a0 / na, a1 / na, a2 / na
-        k = 3 * self._rim
-        u0, u1, u2 = q[k] - q[o], q[k + 1] - q[o + 1], q[k + 2] - q[o + 2]
-        ua = u0 * a0 + u1 * a1 + u2 * a2
-        u0, u1, u2 = u0 - ua * a0, u1 - ua * a1, u2 - ua * a2
-        nu = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
-        u0, u1, u2 = u0 / nu, u1 / nu, u2 / nu
-        return np.array([[a0, u0, a1 * u2 - a2 * u1], [a1, u1, a2 * u0 - a0 * u2], [a2, u2, a0 * u1 - a1 * u0]])
+        i0, _, i2 = self._axis_nodes
+        P = np.empty(9)
+        robot_pose(q, i0, i2, self._rim, P)
+        return P.reshape(3, 3)
 
     def _rotated_solve(self, r: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Solve with the kept factorisation of an earlier configuration, turned to the current one.
