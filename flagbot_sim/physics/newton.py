@@ -31,7 +31,7 @@ from .linsolve import ArrowSolver
 KERNELS = (
     ("frames", "_trial_frames", "- f2 i2 f2 f2 i2 f2 f1 f2 f1 f2 f2 f1"),
     ("elastic", "_stretch", "- f2 f1 f1 f1 i2 i2 f1 f1 b"),
-    ("elastic", "_bend_twist", "- f2 f1 f2 f2 f1 f2 f2 f1 i2 i2 f2 f1 f2 f1 f1 f1 i2 i2 i f f2 f1 f1 b"),
+    ("elastic", "_bend_twist", "- f2 f1 f2 f2 f1 f2 f2 f1 i2 i2 f2 f1 f2 f1 f1 f1 i2 i2 i f f2 f2 f1 f1 b"),
     ("effects", "rft", "- f2 f1 f i1 i1 i1 f1 f f i2 f1 f1 i3 i3 i3 b"),
     ("elastic", "tangent_torque", "- f2 f2 f1 i f f i1 f1 f1 i1 i1 b"),
     ("linsolve", "_arrow_factor", "i f1 i1 f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 n1"),
@@ -82,7 +82,7 @@ REUSE_DV_CHANGE = 0.15
 # (the first version of this module, with the model's arrays in tuples, compiled ~3x longer).
 @stage
 def _trial(fns, q, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_edges, sign, d1c, tc, ref_prev, t,
-           length, d1, d2, rt, v, a, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S,
+           length, d1, d2, rt, v, a, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, W,
            mass, grav, rk, ra, rb, rl, eta_t, eta_p, rdofs, skk, ska, skb, hd_dofs, hd_w, ht_c, ht_edge, ht_dof,
            ht_x, gy_f, gy_eps2, gy_dofs, fixed, r):
     """The trial configuration q: its frames (t, length, d1, d2, rt), velocity v and acceleration a from the plan,
@@ -122,14 +122,14 @@ def _trial(fns, q, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_ed
                 r[j2] += c * v[j2]
     _stretch_at(fns[STRETCH])(t, length, rest, EA, sdofs, sslots, r, e0, False)
     _bend_twist_at(fns[BEND_TWIST])(x, q[3 * N:], t, tc, length, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar,
-                                    tbar, kb, kt, hdofs, hslots, twist_hinge, angle, S, r, e0, False)
+                                    tbar, kb, kt, hdofs, hslots, twist_hinge, angle, S, W, r, e0, False)
     for f in fixed:
         r[f] = 0.0
 
 
 @stage
 def _jacobian(fns, q, N, dv, da, angle, twist_hinge, order, hinge_edges, sign, tc, t, length, d1, d2, rt, v, rest,
-              EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, mass, in_slots, rk, ra, rb, rl,
+              EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, W, mass, in_slots, rk, ra, rb, rl,
               eta_t, eta_p, rdofs, skk, ska, skb, hd_w, hd_slots, ht_c, ht_edge, ht_dof, ht_x, ht_s0, ht_s1, ht_s2,
               gy_f, gy_eps2, gy_dofs, gy_slots, fix_slots, fix_diag, J):
     """The model's Jacobian (CSC data) at the trial configuration q (frames and v of q), prescribed rows made
@@ -164,7 +164,7 @@ def _jacobian(fns, q, N, dv, da, angle, twist_hinge, order, hinge_edges, sign, t
                         J[gy_slots[9 * k + 3 * i + j]] += c * ((1.0 if i == j else 0.0) - vi * vj / s2) * dv
     _stretch_at(fns[STRETCH])(t, length, rest, EA, sdofs, sslots, rz, J, True)
     _bend_twist_at(fns[BEND_TWIST])(x, q[3 * N:], t, tc, length, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar,
-                                    tbar, kb, kt, hdofs, hslots, twist_hinge, angle, S, rz, J, True)
+                                    tbar, kb, kt, hdofs, hslots, twist_hinge, angle, S, W, rz, J, True)
     for s in fix_slots:
         J[s] = 0.0
     for s in fix_diag:
@@ -253,7 +253,7 @@ def _all_finite(x):
 
 
 #: the signature of _newton as StepNewton.solve calls it (compiled from it by physics.warmup, with no model built)
-NEWTON_SIGNATURE = ("- i1 f1 i f f1 f f1 f i i1 (i2 i2 f2) (f2 f2 f1) (f1 f1 i2 i2 i2 f1 f2 f1 f1 f1 i2 i2 f2) "
+NEWTON_SIGNATURE = ("- i1 f1 i f f1 f f1 f i i1 (i2 i2 f2) (f2 f2 f1) (f1 f1 i2 i2 i2 f1 f2 f1 f1 f1 i2 i2 f2 f2) "
                     "(f1 i1 f1 i1 i1 i1 f1 f1 i2 i3 i3 i3 i1 f i1 f i i i1 i i1 i1 f f i2 i1) i1 i1 i1 f1 f i "
                     "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1) i1 i1 f1 f1 f1")
 
@@ -278,7 +278,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
     Returns (converged, iterations, q, v, (t, length, d1, d2, ref_twist)) of the accepted iterate."""
     edges, hinge_edges, sign = net
     d1c, tc, ref_prev = committed
-    rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S = el
+    rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, W = el
     (mass, in_slots, grav, rk, ra, rb, rl, eta, rdofs, skk, ska, skb, hd_dofs, hd_w, hd_slots, ht_c, ht_edge,
      ht_dof, ht_x, ht_s0, ht_s1, ht_s2, gy_f, gy_eps2, gy_dofs, gy_slots) = ef
     (buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off,
@@ -307,7 +307,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
     while done == 0:
         _trial(fns, q_t, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_edges, sign, d1c, tc, ref_prev,
                t_t, length_t, d1_t, d2_t, rt_t, v_t, a_t, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt,
-               hdofs, hslots, S, mass, grav, rk, ra, rb, rl, eta[0], eta[1], rdofs, skk, ska, skb, hd_dofs, hd_w,
+               hdofs, hslots, S, W, mass, grav, rk, ra, rb, rl, eta[0], eta[1], rdofs, skk, ska, skb, hd_dofs, hd_w,
                ht_c, ht_edge, ht_dof, ht_x, gy_f, gy_eps2, gy_dofs, fixed, r_t)
         m_max, m = _norms(r_t, scale)
         take = False                 # the trial becomes the iterate
@@ -383,7 +383,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
         if newton:
             if not fresh:
                 _jacobian(fns, q, N, dv, da, angle, twist_hinge, order, hinge_edges, sign, tc, t, length, d1, d2, rt,
-                          v, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, mass,
+                          v, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, W, mass,
                           in_slots, rk, ra, rb, rl, eta[0], eta[1], rdofs, skk, ska, skb, hd_w, hd_slots, ht_c,
                           ht_edge, ht_dof, ht_x, ht_s0, ht_s1, ht_s2, gy_f, gy_eps2, gy_dofs, gy_slots, fix_slots,
                           fix_diag, J)
@@ -439,7 +439,8 @@ class StepNewton:
         self.order = np.array([_CODES[type(e)] for e in model.effects], np.int64)
         self.net = (_i64(net.edges), _i64(net.hinge_edges), np.ascontiguousarray(el.sign))
         self.el = (net.edge_rest_length, net.EA, el.stretch_dofs, el.stretch_slots, net.hinge_nodes, el.beta,
-                   el.kappa_bar, el.tau_bar, el.k_bend, el.k_twist, el.hinge_dofs, el.hinge_slots, el._strains)
+                   el.kappa_bar, el.tau_bar, el.k_bend, el.k_twist, el.hinge_dofs, el.hinge_slots, el._strains,
+                   el._moments)
         self.ef = self._effect_terms(model)
         self.fixed = _i64(model.prescribed_dofs)
         slots, diag = model.pattern.fix_rows_mask(model.prescribed_dofs)
