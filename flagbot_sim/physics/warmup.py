@@ -316,6 +316,8 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
             GROUPS[g].warm()
             _LOADED.add(g)
     if later:
+        (notify or _stderr)(f"flagbot_sim:   {', '.join(later)}: compiling in the background (low priority, a few "
+                            "seconds of one core) for the next run; this run steps without it, same numbers")
         _compile_in_background(later)
     return time.perf_counter() - t0
 
