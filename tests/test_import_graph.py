@@ -9,7 +9,12 @@ resolved, and modules loaded through importlib count as imports of the module th
 argument whose constant head names a package (``f"flagbot_sim.bench.{name}"``, ``f"{__name__}.{name}"``) joined
 with each string constant of the module, and, in a module that calls ``importlib.import_module`` with any other
 computed name, every string constant in it that names a flagbot_sim module (``COMMAND_MODULES`` in cli.py is
-such a list). Each rule is also shown to fail on a synthetic violation.
+such a list). ``import_module`` under another name (``from importlib import import_module as load``) is the same
+call, and a string constant that names a flagbot_sim module passed to any call is an import of it: that is how a
+helper that imports what it is given is used (``optional.require(..., "flagbot_sim.x")``, ``ros_entry("...")``).
+ROS libraries are known by name and by ROS 2's package naming (``*_msgs``, ``*_srvs``, ``*_interfaces``, ``tf2_*``,
+``rcl*``, ...), and the physics' numeric-only rule holds for everything it loads, the base modules it imports
+included. Each rule is also shown to fail on a synthetic violation.
 """
 import ast
 import sys
@@ -44,10 +49,21 @@ ROS = {"rclpy", "rosidl_runtime_py", "rosidl_parser", "rpyutils", "rosbag2_py", 
        "std_msgs", "geometry_msgs", "sensor_msgs", "nav_msgs", "visualization_msgs", "rosgraph_msgs",
        "diagnostic_msgs", "std_srvs", "tf2_msgs", "builtin_interfaces", "rcl_interfaces", "lifecycle_msgs",
        "launch", "launch_ros"}
+#: ROS 2 package names by their conventions: message/service/action packages and the client, transport, tf and
+#: launch libraries (rclpy_lifecycle, tf2_ros, action_msgs, rmw_*, ros2cli, ...)
+ROS_SUFFIXES = ("_msgs", "_srvs", "_interfaces", "_actions")
+ROS_PREFIXES = ("rcl", "rmw", "rosidl", "rosbag2", "ros2", "tf2", "launch", "message_filters")
 # (ament_index_python is not among them: a file lookup, no ROS runtime; bag.schema finds .msg files with it where
 # a ROS prefix is set, as rosbag2 does, and reads them from the package's own copies elsewhere)
 #: layers that import no ROS library: ROS 2 is an optional extra, loaded only by the adapters and commands
 ROS_FREE = {"base", "physics", "support", "libraries"}
+#: what the base layer may import besides the standard library (docs/architecture.md)
+BASE_EXTERNAL = {"numpy", "scipy", "matplotlib"}
+
+
+def is_ros(name: str) -> bool:
+    """Whether the top-level module ``name`` is a ROS 2 library or message package."""
+    return name in ROS or name.endswith(ROS_SUFFIXES) or name.startswith(ROS_PREFIXES)
 
 
 def module_names(src: Path = SRC) -> dict[str, Path]:
@@ -73,12 +89,20 @@ def _resolve_from(module: str, is_package: bool, node: ast.ImportFrom) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
-def _is_import_module_call(node: ast.AST) -> bool:
+def _is_import_module_call(node: ast.AST, aliases: frozenset = frozenset()) -> bool:
+    """``importlib.import_module(...)``, ``import_module(...)``, ``__import__(...)``, or a call of a name
+    ``import_module`` was imported as (``aliases``)."""
     if not isinstance(node, ast.Call):
         return False
     f = node.func
-    return (isinstance(f, ast.Attribute) and f.attr == "import_module") or (isinstance(f, ast.Name) and
-                                                                             f.id in ("import_module", "__import__"))
+    return (isinstance(f, ast.Attribute) and f.attr == "import_module") or (
+        isinstance(f, ast.Name) and f.id in {"import_module", "__import__", *aliases})
+
+
+def _import_module_aliases(tree: ast.AST) -> frozenset:
+    """The names ``from importlib import import_module as NAME`` binds in a module."""
+    return frozenset(a.asname for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module == "importlib"
+                     for a in n.names if a.name == "import_module" and a.asname)
 
 
 def _fstring_head(node: ast.JoinedStr, module: str, is_package: bool) -> str | None:
@@ -117,7 +141,13 @@ def parse_imports(module: str, source: str, modules, is_package: bool = False) -
             found.add(name)
 
     dynamic = False
+    aliases = _import_module_aliases(tree)
     for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and not _is_import_module_call(node, aliases):
+            # a module's name handed to a helper that imports it (import_module's own arguments: below)
+            for arg in [*node.args, *(k.value for k in node.keywords)]:
+                if isinstance(arg, ast.Constant) and isinstance(arg.value, str) and arg.value in modules:
+                    add(arg.value)
         if isinstance(node, ast.Import):
             for a in node.names:
                 add(a.name)
@@ -129,7 +159,7 @@ def parse_imports(module: str, source: str, modules, is_package: bool = False) -
             for a in node.names:
                 sub = f"{target}.{a.name}"
                 add(sub if sub in modules else target)   # `from pkg import submodule` imports the submodule
-        elif _is_import_module_call(node):
+        elif _is_import_module_call(node, aliases):
             arg = node.args[0] if node.args else None
             if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
                 name = arg.value
@@ -193,14 +223,37 @@ def layer_violations(graph: dict[str, set[str]]) -> list[str]:
 
 def external_violations(module: str, external: set[str]) -> list[str]:
     """The non-flagbot_sim imports ``module``'s layer does not allow: beyond the standard library and
-    :data:`NUMERIC` for the physics, any ROS library for the ROS-free layers."""
+    :data:`NUMERIC` for the physics, beyond it and :data:`BASE_EXTERNAL` for the base, any ROS library for the
+    ROS-free layers."""
     layer = layer_of(module)
     bad = set()
     if layer == "physics":
         bad |= {e for e in external if e not in sys.stdlib_module_names and e not in NUMERIC}
+    if layer == "base":
+        bad |= {e for e in external if e not in sys.stdlib_module_names and e not in BASE_EXTERNAL}
     if layer in ROS_FREE:
-        bad |= external & ROS
+        bad |= {e for e in external if is_ros(e)}
     return [f"{module} ({layer}) imports {e}" for e in sorted(bad)]
+
+
+def loaded_external_violations(graph: dict[str, set[str]], external: dict[str, set[str]]) -> list[str]:
+    """The physics' numeric-only rule over everything a physics module loads: the non-numeric, non-standard
+    imports of the flagbot_sim modules it imports, directly or through others (a base module's matplotlib)."""
+    out = []
+    for module in sorted(graph):
+        if layer_of(module) != "physics":
+            continue
+        seen, todo = set(), [module]
+        while todo:
+            for d in graph.get(todo.pop(), ()):
+                if d not in seen:
+                    seen.add(d)
+                    todo.append(d)
+        for d in sorted(seen):
+            for e in sorted(external.get(d, ())):
+                if e not in sys.stdlib_module_names and e not in NUMERIC:
+                    out.append(f"{module} (physics) loads {e} through {d}")
+    return out
 
 
 def components(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -309,6 +362,22 @@ def test_the_parser_reads_every_kind_of_import():
     assert external == {"os", "numpy", "rclpy", "importlib"}
 
 
+def test_an_aliased_import_module_and_a_module_name_given_to_a_helper_are_imports():
+    modules = {"flagbot_sim", "flagbot_sim.ros", "flagbot_sim.ros.fake", "flagbot_sim.commands",
+               "flagbot_sim.commands.run", "flagbot_sim.commands.render", "flagbot_sim.optional"}
+    source = "\n".join([
+        "from importlib import import_module as load",
+        "from ..optional import require",
+        "def f(name):",
+        "    load(name)",
+        "    return require('view', 'the view', module='flagbot_sim.commands.render')",
+        "TARGET = 'flagbot_sim.commands.run'",          # found because load() takes a computed name
+        "DOC = 'see flagbot_sim.commands for the commands'",  # prose, not a module name: no edge
+    ])
+    found, _ = parse_imports("flagbot_sim.ros.fake", source, modules)
+    assert found == {"flagbot_sim.optional", "flagbot_sim.commands.run", "flagbot_sim.commands.render"}
+
+
 def test_a_cycle_is_found_and_printed_as_a_path():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c", "a"]]
     assert cycles({"a": {"b"}, "b": set()}) == []
@@ -363,6 +432,29 @@ def test_the_library_rules_fail_on_a_violation():
     assert external_violations("flagbot_sim.bag.fake", ext) == ["flagbot_sim.bag.fake (support) imports std_msgs"]
     _, ext = parse_imports("flagbot_sim.ros.fake", "import rclpy\n", modules)
     assert external_violations("flagbot_sim.ros.fake", ext) == []
+    # ROS 2 packages that are not in the list, known by their names' conventions
+    _, ext = parse_imports("flagbot_sim.device", "def f():\n    import tf2_ros\n    from action_msgs.msg import G\n"
+                           "    import rclpy_message_converter, example_interfaces, rmw_fastrtps_cpp\n", modules)
+    assert external_violations("flagbot_sim.device", ext) == [
+        f"flagbot_sim.device (libraries) imports {e}" for e in
+        ("action_msgs", "example_interfaces", "rclpy_message_converter", "rmw_fastrtps_cpp", "tf2_ros")]
+    # the base: the standard library, numpy, scipy, matplotlib
+    _, ext = parse_imports("flagbot_sim.units", "import json, numpy, matplotlib\nimport mcap\n", modules)
+    assert external_violations("flagbot_sim.units", ext) == ["flagbot_sim.units (base) imports mcap"]
+    # the physics through a base module it imports
+    graph = {"flagbot_sim.physics.model": {"flagbot_sim.plotlabels"}, "flagbot_sim.plotlabels": set(),
+             "flagbot_sim.physics.frames": {"flagbot_sim.units"}, "flagbot_sim.units": set()}
+    external = {"flagbot_sim.physics.model": {"numpy"}, "flagbot_sim.plotlabels": {"matplotlib", "math"},
+                "flagbot_sim.physics.frames": {"numba"}, "flagbot_sim.units": {"math"}}
+    assert loaded_external_violations(graph, external) == [
+        "flagbot_sim.physics.model (physics) loads matplotlib through flagbot_sim.plotlabels"]
+
+
+def test_the_physics_loads_only_numeric_libraries_through_what_it_imports():
+    modules = module_names()
+    external = {m: external_imports_of(m, p, modules) for m, p in modules.items()}
+    bad = loaded_external_violations(import_graph(), external)
+    assert not bad, "the physics loads what it may not (docs/architecture.md):\n  " + "\n  ".join(bad)
 
 
 def test_no_import_cycle():
