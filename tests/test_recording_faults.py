@@ -118,6 +118,18 @@ def test_standalone_record_refuses_a_target_it_cannot_write(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_standalone_record_refuses_a_duration_that_is_not_positive(tmp_path):
+    """`flagbot record --duration 0 / -1 / nan`: one `error:` line naming --duration, exit 2, no file (-1 and nan
+    used to stop at once and leave an empty recording, 0 to record until Ctrl-C)."""
+    from cli_helpers import flagbot
+    for bad in ("0", "-1", "nan"):
+        r = flagbot("record", "-o", str(tmp_path / "run.mcap"), "--duration", bad, timeout=60)
+        assert r.returncode == 2, (bad, r.stdout + r.stderr)
+        err = [ln for ln in r.stderr.splitlines() if ln.startswith("error")]
+        assert len(err) == 1 and "--duration" in err[0] and "Traceback" not in r.stderr, (bad, r.stderr)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_standalone_record_refuses_a_dangling_symbolic_link(tmp_path):
     """`flagbot record -o LINK` and the `record` script with LINK -> a missing file: one `error:` line naming the
     link, exit 2, the target not created (it used to be written through the link)."""

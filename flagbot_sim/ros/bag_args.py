@@ -24,7 +24,7 @@ def add_record_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", help="output .mcap file (default: flagbot_YYYYmmdd_HHMMSS.mcap)")
     p.add_argument("-a", "--all", action="store_true", help="record every topic currently or later visible")
     p.add_argument("--exclude", action="append", metavar="REGEX", help="do not record topics matching REGEX")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (> 0)")
     p.add_argument("--scene", help="scene (built-in name or .toml) to store in the file's metadata")
     p.add_argument("--params-from", metavar="NODE", help="store all parameters of this node (e.g. /sim_node), and "
                                                          "the text of the scene its `scene` parameter names")

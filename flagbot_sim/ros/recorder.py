@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import re
 import sys
 import threading
@@ -302,6 +303,9 @@ def default_output() -> str:
 
 def run(args: argparse.Namespace, ros_args: list[str] | None = None) -> int:
     """Run the recorder node until SIGINT/SIGTERM or ``--duration``. Returns the exit code."""
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        # (0 or a negative or NaN duration used to record nothing, or forever, into a file it still wrote)
+        raise BagError(f"--duration must be a positive number of seconds, got {args.duration!r}")
     extra = {}
     for kv in args.metadata or []:
         k, sep, v = kv.partition("=")
