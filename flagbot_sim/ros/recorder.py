@@ -273,7 +273,7 @@ class Recorder:
 
 
 def scene_text(name_or_path: str) -> str:
-    """A scene file's text as the CLI and the nodes read it (scene.py's one reader: a BOM dropped, never blocking)."""
+    """A scene file's text as the CLI and the nodes read it (scene_files.py's one reader: BOM dropped, no blocking)."""
     from ..scene_files import read_scene_text, resolve_scene_path
     return read_scene_text(resolve_scene_path(name_or_path))
 
