@@ -144,8 +144,10 @@ class MediumSection:
 @dataclass(frozen=True)
 class HeadSection:
     radius: float = _f(0.02, "m", "head radius R_h", ge=MIN_LENGTH, le=MAX_LENGTH)
-    C1: float = _f(2.420, "", "Stokes drag factor C1", ge=0.0, le=1.0e6)
-    C2: float = _f(0.039, "", "Stokes torque factor C2", ge=0.0, le=1.0e6)
+    C1: float = _f(2.420, "", "Stokes drag factor C1 (granular_rft; the viscous head is the exact sphere)",
+                   ge=0.0, le=1.0e6)
+    C2: float = _f(0.039, "", "Stokes torque factor C2 (granular_rft; the viscous head is the exact sphere)",
+                   ge=0.0, le=1.0e6)
 
 
 @dataclass(frozen=True)

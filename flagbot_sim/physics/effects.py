@@ -208,7 +208,8 @@ class RFTDrag(Effect):
     """
     name = "rft"
     kernel_groups = ("rft",)
-    description = "resistive-force-theory drag of the medium on the flagella (eta_t, eta_p from mu, L, r0)"
+    description = ("resistive-force-theory drag of the medium on the flagella (eta_t, eta_p from medium.model, mu, "
+                   "r0 and L or the helix)")
 
     def __init__(self, net: RodNetwork, eta_t: float, eta_p: float):
         self.eta_t, self.eta_p = float(eta_t), float(eta_p)
@@ -267,7 +268,7 @@ class HeadDrag(Effect):
     exactly the paper's force on v_h = dx1/dt, and it also resists the head's tilting.
     """
     name = "head_drag"
-    description = "Stokes drag on the head, -C1*6*pi*mu*R_h*v_h"
+    description = "Stokes drag on the head, -C1*6*pi*mu*R_h*v_h (C1 = 1 in the viscous medium)"
     on_head = True
 
     def __init__(self, net: RodNetwork, coefficient: float):
@@ -303,7 +304,7 @@ class HeadTorque(Effect):
     """
     name = "head_torque"
     kernel_groups = ("head_torque",)
-    description = "Stokes torque on the head spin, -C2*8*pi*mu*R_h^3*omega_h"
+    description = "Stokes torque on the head spin, -C2*8*pi*mu*R_h^3*omega_h (C2 = 1 in the viscous medium)"
     on_head = True
 
     def __init__(self, net: RodNetwork, coefficient: float):
