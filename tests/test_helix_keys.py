@@ -44,6 +44,19 @@ def test_a_wrong_combination_is_one_error_line_naming_the_key(tmp_path, args, ke
     assert "Traceback" not in p.stderr
 
 
+def test_fitting_the_pitch_from_straight_flagella_asks_for_a_helical_start(tmp_path):
+    """0 is apart from every helix (|P| > 2 r0): the fit refuses it before any model run, naming the key and how
+    to start (it used to run once and fail on its first finite-difference step, naming a pitch the user never
+    gave)."""
+    (tmp_path / "data.csv").write_text("n,omega_T_rpm,v\n2,100,1e-4\n")
+    p = flagbot("fit", "design1", str(tmp_path / "data.csv"), "--fit", "flagellum.helix_pitch", "--engine", "serial",
+                "--out", str(tmp_path / "f"))
+    assert p.returncode == 2, (p.stdout, p.stderr)
+    err = [line for line in p.stderr.splitlines() if line.startswith("error")]
+    assert len(err) == 1 and "--fit flagellum.helix_pitch: the start value is 0" in err[0], p.stderr
+    assert "--set flagellum.helix_pitch=" in err[0] and "evaluation" not in p.stdout + p.stderr
+
+
 def test_sweep_fit_and_optimize_take_the_keys(tmp_path):
     """A DER sweep over the handedness and the medium (with the comparison figure), a fit that recovers the
     pitch and viscosity behind synthetic data, and a design search over the pitch."""

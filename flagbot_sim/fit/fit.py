@@ -116,6 +116,10 @@ def parse_parameters(text: str, base: Scene, bounds: dict[str, tuple[float, floa
         if lo >= 0.0 and start == 0.0:
             raise FitError(f"--fit {key}: the start value is 0; a positive key is fitted in log space, so give a "
                            f"positive start with --set {key}=...")
+        if key == "flagellum.helix_pitch" and start == 0.0:
+            # 0 (straight) is apart from every helix (|P| > 2 r0): the first finite-difference step was refused
+            raise FitError(f"--fit {key}: the start value is 0, straight flagella, which no helix is near (a helix "
+                           f"needs |P| > 2 r0); give a helical start with --set {key}=... (its sign the handedness)")
         log = lo >= 0.0
         if key in bounds:
             blo, bhi = bounds[key]
