@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import math
 
+from .network import section
+
 #: the media a scene can choose (``medium.model``), with one line each for ``flagbot scenes`` and the docs
 MODELS: dict[str, str] = {
     "granular_rft": "the paper's granular RFT: effective mu, eta from the straight-rod forms, head law C1, C2",
@@ -85,7 +87,7 @@ def head_torque_coefficient(scene) -> float:
 
 def bending_stiffness(scene) -> float:
     """EI = pi/4 E r0^4 (N m^2) of the flagellum, the stiffness the medium's load is measured against."""
-    return math.pi / 4.0 * scene.flagellum.youngs_modulus * scene.flagellum.radius ** 4
+    return scene.flagellum.youngs_modulus * section(scene.flagellum)[1]
 
 
 def force_scale(scene) -> float:

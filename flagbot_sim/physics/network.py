@@ -170,15 +170,21 @@ def flagellum_centreline(s: np.ndarray, phi: float, radius: float, pitch: float)
     return out, t0
 
 
+def section(flagellum) -> tuple[float, float, float]:
+    """Area, second moment and polar moment A, I, J (m^2, m^4, m^4) of the flagellum's solid circular section
+    (radius r0): the one home of these formulas, for the rod's springs and masses and for every scale measured
+    against them (physics/medium.py's EI)."""
+    r0 = flagellum.radius
+    return math.pi * r0 ** 2, math.pi / 4.0 * r0 ** 4, math.pi / 2.0 * r0 ** 4
+
+
 def build_network(scene) -> RodNetwork:
     """Build the robot (or, for a clamp scene, the driven plate + one flagellum) described by ``scene``."""
     fl = scene.flagellum
     E = fl.youngs_modulus
     G = E / (2.0 * (1.0 + fl.poisson_ratio))
     r0 = fl.radius
-    A = math.pi * r0 ** 2
-    I = math.pi / 4.0 * r0 ** 4
-    J = math.pi / 2.0 * r0 ** 4
+    A, I, J = section(fl)
     EA, EI, GJ = E * A, E * I, G * J
     rf = scene.numerics.rigid_factor
     rho = fl.density
