@@ -6,6 +6,7 @@ into the Foxglove live view (:mod:`flagbot_sim.view.replay`, no ROS). rclpy is i
 """
 from __future__ import annotations
 
+import math
 import sys
 
 from ..bag import BagError
@@ -19,6 +20,10 @@ def cmd_replay(args, ros_args: list[str] | None = None) -> int:
         return cmd_resimulate(args)
     if args.view:
         return cmd_replay_view(args)
+    for flag in ("delay", "wait_for_subscribers"):      # before ROS starts: nothing to undo
+        value = getattr(args, flag)
+        if not (math.isfinite(value) and value >= 0.0):
+            return fail(ValueError(f"--{flag.replace('_', '-')} must be a finite number of seconds >= 0, got {value}"))
     try:
         from ..ros.replay import run
         return run(args, ros_args=ros_args or ["replay"])
