@@ -76,8 +76,8 @@ def test_resimulate_says_when_the_recording_is_not_reproduced_and_exits_1(tmp_pa
 @pytest.mark.parametrize("flag,value", [("--delay", "-5"), ("--delay", "nan"), ("--wait-for-subscribers", "-1"),
                                         ("--wait-for-subscribers", "inf")])
 def test_replay_refuses_a_negative_or_non_finite_wait_before_starting_ros(flag, value):
-    """A wait of -5 s, nan or inf was accepted (inf waited for subscribers for ever); now one error line naming the flag, exit 2, and
-    no ROS node ever started (nothing is published: the refusal comes before rclpy is imported)."""
+    """A wait of -5 s, nan or inf was accepted (inf waited for subscribers for ever); now one error line naming
+    the flag, exit 2, and no ROS node ever started (the refusal comes before rclpy is imported)."""
     p = flagbot("replay", str(BAG), flag, value)
     assert p.returncode == 2
     assert p.stderr.strip().splitlines() == [f"error: {flag} must be a finite number of seconds >= 0, got "
