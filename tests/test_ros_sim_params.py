@@ -300,7 +300,9 @@ def test_refused_rate_change_keeps_the_clock_rate_and_refused_record_keeps_recor
     # a valid rate change still works
     (res,) = set_params(ros, "sim_node", publish_rate=10.0)
     assert res.successful, res.reason
-    assert 0.6 * min(10.0, 10.0 * before / 50.0) < clock_rate(ros, lis) < 14
+    # over 3 s: the node's timer does not catch up on ticks missed while the machine stalled it, so in a 1 s
+    # window a 0.4 s stall of a loaded machine cost 4 of 10 ticks (measured 5.97 Hz at load ~3, 10 Hz alone)
+    assert 0.6 * min(10.0, 10.0 * before / 50.0) < clock_rate(ros, lis, seconds=3.0) < 14
 
 
 def test_use_sim_time_at_run_time_keeps_the_clock_running_and_is_said_once(ros, device):
