@@ -3,17 +3,22 @@
 An independent reference for the DER clamped-flagellum scene (issue 6): no discretisation in time, no discrete
 rod, only the continuum equations and ``scipy.integrate.solve_bvp``.
 
-The flagellum (length L, bending stiffness EI, isotropic, inextensible, unshearable) is clamped at radius R_d in
-a plate turning about the x axis at omega. In the frame turning with the plate its shape is steady, and every
-material point moves in the lab on a circle, with velocity v = omega x_hat x r (r measured from the axis) and
-acceleration a = omega x_hat x (omega x_hat x r) = -omega^2 (0, y, z). With isotropic bending and no distributed
-torque the twist moment m.t is constant along the rod and vanishes at the free tip, so the rod is twist-free and
-the Kirchhoff equations in arc length s in [0, L] are
+The flagellum (length L, bending stiffness EI, stretching stiffness EA, isotropic, unshearable) is clamped at
+radius R_d in a plate turning about the x axis at omega. In the frame turning with the plate its shape is steady,
+and every material point moves in the lab on a circle, with velocity v = omega x_hat x r (r measured from the
+axis) and acceleration a = omega x_hat x (omega x_hat x r) = -omega^2 (0, y, z). With isotropic bending and no
+distributed torque the twist moment m.t is constant along the rod and vanishes at the free tip, so the rod is
+twist-free and the Kirchhoff equations in the *undeformed* arc length s in [0, L] are
 
-    r' = t,
+    r' = (1 + eps) t,    eps = (n.t) / EA,           (axial strain; EA = inf: inextensible, r' = t)
     t' = (m x t) / EI,                               (m = EI t x t', the bending moment)
-    m' = -t x n,                                     (moment balance, no distributed torque)
+    m' = -(1 + eps) t x n,                           (moment balance, no distributed torque: m' + r' x n = 0)
     n' = -f(r, t) + rho_A a(r),                       (force balance; rho_A = 0 drops the centrifugal term)
+
+as the DER flagellum has them: its stretching springs store 1/2 EA (l/l0 - 1)^2 l0 (physics/elastic.py, tension
+EA times the engineering strain l/l0 - 1, EA = E pi r0^2 as physics/network.py builds it), its bending springs
+measure the turning angle per *rest* Voronoi length (EI t x t' with t' per undeformed length), and its drag and
+mass are lumped over the rest lengths (loads per undeformed length, the tip at s = L).
 
 with the resistive-force-theory load per unit length f = -eta_p v - (eta_t - eta_p)(v.t) t and the boundary
 conditions r(0) = (0, R_d, 0), t(0) = x_hat (clamped), n(L) = 0, m(L) = 0 (free tip). The outputs are
@@ -24,6 +29,9 @@ torque about the axis) and the tip r(L) in the co-rotating frame: the same quant
 The DER scene has inertia (lumped masses, density from the scene), so at steady rotation its nodes carry the
 centrifugal load rho A omega^2 (0, y, z); ``from_scene`` includes that term when the scene lists ``inertia``
 (``rho_A = density * pi r0^2``). It is a 0.2% effect at 10 rpm for design 1's flagellum and grows as omega^2.
+That load stretches the flagellum (design 1: mean strain 1.1e-4 at 100 rpm, 1.9e-3 at 2000 rpm), so
+``from_scene`` gives the rod the scene's EA = E pi r0^2 (``extensible=False``: EA = inf, the inextensible rod);
+``solve_clamped_rod``'s default is EA = inf.
 
 Numerics. The problem is solved in normalised form (s = L xi, r = L r_bar, m = EI/L m_bar, n = EI/L^2 n_bar),
 with two quadrature states for Fx and Tx so that they come from the same collocation as the shape, an analytic
@@ -86,6 +94,7 @@ class RodSolution:
     error_estimate: float        # largest relative change of Fx, Tx, tip under mesh halving
     nodes: int
     continuation: list = field(default_factory=list)   # omega_bar values solved on the way
+    strain: np.ndarray | None = None                   # (M,) axial strain eps = (n.t) / EA (0 if inextensible)
     params: dict = field(default_factory=dict)
     _sol: object = field(default=None, repr=False)
 
@@ -116,10 +125,11 @@ def _skew(a):
     return np.array([[z, -a[2], a[1]], [a[2], z, -a[0]], [-a[1], a[0], z]])
 
 
-def _make_problem(W: float, kappa: float, Rbar: float, C: float):
+def _make_problem(W: float, kappa: float, Rbar: float, C: float, e: float = 0.0):
     """fun, fun_jac, bc, bc_jac of the normalised problem.
 
-    W = omega_bar, kappa = eta_t/eta_p, Rbar = R_d/L, C = rho_A omega^2 L^4 / EI (centrifugal number).
+    W = omega_bar, kappa = eta_t/eta_p, Rbar = R_d/L, C = rho_A omega^2 L^4 / EI (centrifugal number),
+    e = EI / (EA L^2) (extensibility: eps = e n_bar.t; 0 = inextensible).
     Normalised load f_bar = f L^3/EI = -W [u + (kappa - 1)(u.t) t], u = x_hat x r_bar = (0, -z, y).
     """
     k1 = kappa - 1.0
@@ -134,10 +144,11 @@ def _make_problem(W: float, kappa: float, Rbar: float, C: float):
     def fun(x, y):
         r, t, u, ut, f = load(y)
         m, n = y[6:9], y[9:12]
+        g = 1.0 + e * np.einsum("in,in->n", n, t)                     # 1 + eps: stretch ratio
         dn = -f
         dn[1] -= C * r[1]
         dn[2] -= C * r[2]
-        return np.vstack([t, np.cross(m, t, axis=0), np.cross(n, t, axis=0), dn,
+        return np.vstack([g * t, np.cross(m, t, axis=0), g * np.cross(n, t, axis=0), dn,
                           f[0][None], (r[1] * f[2] - r[2] * f[1])[None]])
 
     def fun_jac(x, y):
@@ -150,12 +161,15 @@ def _make_problem(W: float, kappa: float, Rbar: float, C: float):
         df_dr[:, 1] = -W * A[:, 2]                                      # du/dr: u1 = -r2, u2 = r1
         df_dr[:, 2] = W * A[:, 1]
         df_dt = -W * k1 * (ut[None, None, :] * I3 + t[:, None, :] * u[None, :, :])
+        g = 1.0 + e * np.einsum("in,in->n", n, t)
+        nxt = np.cross(n, t, axis=0)
         J = np.zeros((_NSTATE, _NSTATE, N))
-        J[0:3, 3:6] = I3
+        J[0:3, 3:6] = g * I3 + e * t[:, None, :] * n[None, :, :]        # d(g t)/dt, dg/dt = e n
+        J[0:3, 9:12] = e * t[:, None, :] * t[None, :, :]                # d(g t)/dn, dg/dn = e t
         J[3:6, 6:9] = -_skew(t)                                         # d(m x t)/dm
         J[3:6, 3:6] = _skew(m)                                          # d(m x t)/dt
-        J[6:9, 9:12] = -_skew(t)                                        # d(n x t)/dn
-        J[6:9, 3:6] = _skew(n)                                          # d(n x t)/dt
+        J[6:9, 9:12] = -g * _skew(t) + e * nxt[:, None, :] * t[None, :, :]   # d(g n x t)/dn
+        J[6:9, 3:6] = g * _skew(n) + e * nxt[:, None, :] * n[None, :, :]     # d(g n x t)/dt
         J[9:12, 0:3] = -df_dr
         J[10, 1] -= C
         J[11, 2] -= C
@@ -219,13 +233,14 @@ def _outputs(y_end):
 
 
 def solve_clamped_rod(L: float, R_d: float, EI: float, eta_t: float, eta_p: float, omega: float, *,
-                      rho_A: float = 0.0, tol: float = DEFAULT_TOL, nodes: int = DEFAULT_NODES,
+                      rho_A: float = 0.0, EA: float = math.inf, tol: float = DEFAULT_TOL, nodes: int = DEFAULT_NODES,
                       max_nodes: int = MAX_NODES, check_rtol: float = DEFAULT_CHECK_RTOL,
                       guess: RodSolution | None = None, raise_on_failure: bool = True) -> RodSolution:
     """Steady shape, Fx, Tx and tip of the clamped flagellum turning at omega (rad/s) about the x axis.
 
     L (m), R_d (m, clamp radius), EI (N m^2), eta_t, eta_p (N s/m^2, RFT coefficients), rho_A (kg/m, mass per
-    length for the centrifugal load; 0 for a massless rod). ``guess``: a converged neighbouring solution to start
+    undeformed length for the centrifugal load; 0 for a massless rod), EA (N, stretching stiffness; inf, the
+    default, for an inextensible rod). ``guess``: a converged neighbouring solution to start
     the continuation from (else the linear beam at small omega_bar). ``nodes``: initial mesh size of each solve.
 
     Raises :class:`RodBVPError` (saying at which omega and why) if the continuation stalls, or, with
@@ -240,6 +255,8 @@ def solve_clamped_rod(L: float, R_d: float, EI: float, eta_t: float, eta_p: floa
         raise ValueError(f"omega must be finite, got {omega!r}")
     if not (math.isfinite(rho_A) and rho_A >= 0):
         raise ValueError(f"rho_A must be finite and >= 0, got {rho_A!r}")
+    if not (EA > 0 and not math.isnan(EA)):
+        raise ValueError(f"EA must be > 0 (math.inf: inextensible), got {EA!r}")
     if nodes < 3:
         raise ValueError(f"nodes must be >= 3, got {nodes}")
 
@@ -248,11 +265,12 @@ def solve_clamped_rod(L: float, R_d: float, EI: float, eta_t: float, eta_p: floa
     W_target = eta_p * omega * L ** 4 / EI
     C_per_omega2 = rho_A * L ** 4 / EI       # C = rho_A omega^2 L^4 / EI = C_per_omega2 * omega^2
     W_per_omega = eta_p * L ** 4 / EI
-    params = dict(L=L, R_d=R_d, EI=EI, eta_t=eta_t, eta_p=eta_p, rho_A=rho_A, tol=tol, kappa=kappa)
+    ext = EI / (EA * L ** 2)                 # eps = ext * n_bar.t (0 for EA = inf)
+    params = dict(L=L, R_d=R_d, EI=EI, eta_t=eta_t, eta_p=eta_p, rho_A=rho_A, EA=EA, tol=tol, kappa=kappa)
 
     def attempt(W, x0, y0):
         om = W / W_per_omega
-        fun, fun_jac, bc, bc_jac = _make_problem(W, kappa, Rbar, C_per_omega2 * om * om)
+        fun, fun_jac, bc, bc_jac = _make_problem(W, kappa, Rbar, C_per_omega2 * om * om, ext)
         return solve_bvp(fun, bc, x0, y0, fun_jac=fun_jac, bc_jac=bc_jac, tol=tol, bc_tol=tol,
                          max_nodes=max_nodes)
 
@@ -325,7 +343,8 @@ def _build(omega, W, res, params, converged, message, err, path) -> RodSolution:
         Fx=float(y[12, -1] * EI / L ** 2), Tx=float(y[13, -1] * EI / L), tip=y[0:3, -1] * L,
         s=res.x * L, r=y[0:3] * L, t=y[3:6].copy(), m=y[6:9] * EI / L, n=y[9:12] * EI / L ** 2,
         converged=bool(converged), message=message, error_estimate=float(err), nodes=int(res.x.size),
-        continuation=list(path), params=params, _sol=res.sol)
+        continuation=list(path), params=params, _sol=res.sol,
+        strain=np.einsum("in,in->n", y[9:12], y[3:6]) * (EI / L ** 2) / params["EA"])
 
 
 def _fail(omega, omega_at, W_at, reason, raise_on_failure, params, res) -> RodSolution:
@@ -339,10 +358,13 @@ def _fail(omega, omega_at, W_at, reason, raise_on_failure, params, res) -> RodSo
                        error_estimate=nan, nodes=int(res.x.size), params=params, _sol=None)
 
 
-def from_scene(scene, omega: float | None = None, *, inertia: bool | None = None, **kwargs) -> RodSolution:
-    """The reference for a (clamped-flagellum) scene: its L, R_d, EI, eta_t, eta_p and omega (default the
+def from_scene(scene, omega: float | None = None, *, inertia: bool | None = None, extensible: bool = True,
+               **kwargs) -> RodSolution:
+    """The reference for a (clamped-flagellum) scene: its L, R_d, EI, EA, eta_t, eta_p and omega (default the
     scene's motor.omega_rpm). ``inertia``: include the centrifugal load rho A omega^2 (default: when the scene
-    lists the ``inertia`` effect, as the DER then has it). Other keyword arguments go to solve_clamped_rod.
+    lists the ``inertia`` effect, as the DER then has it). ``extensible``: the scene's EA = E pi r0^2, the DER
+    flagellum's stretching stiffness (False: EA = inf, inextensible). Other keyword arguments go to
+    solve_clamped_rod.
 
     The coefficients are the scene medium's (``medium.model``: the paper's granular RFT, or Gray-Hancock's for a
     straight rod in a viscous fluid). The rod is naturally straight: a helical scene is refused (ValueError)."""
@@ -353,8 +375,15 @@ def from_scene(scene, omega: float | None = None, *, inertia: bool | None = None
     if inertia is None:
         inertia = "inertia" in scene.effects
     rho_A = fl.density * math.pi * fl.radius ** 2 if inertia else 0.0
+    EA = stretching_stiffness(scene) if extensible else math.inf
     return solve_clamped_rod(fl.length, scene.R_d, bending_stiffness(scene), *rft_coefficients(scene),
-                             scene.omega_T if omega is None else float(omega), rho_A=rho_A, **kwargs)
+                             scene.omega_T if omega is None else float(omega), rho_A=rho_A, EA=EA, **kwargs)
 
 
-__all__ = ["RodSolution", "RodBVPError", "solve_clamped_rod", "from_scene", "DEFAULT_TOL"]
+def stretching_stiffness(scene) -> float:
+    """EA = E pi r0^2 (N) of the scene's flagellum: the stiffness of the DER's elastic stretching springs
+    (physics/network.py build_network)."""
+    return scene.flagellum.youngs_modulus * math.pi * scene.flagellum.radius ** 2
+
+
+__all__ = ["RodSolution", "RodBVPError", "solve_clamped_rod", "from_scene", "stretching_stiffness", "DEFAULT_TOL"]
