@@ -203,11 +203,11 @@ def test_der_clamped_flagellum_converges_to_the_rod_bvp(rod10):
 
 def test_at_2000_rpm_the_converged_der_is_the_extensible_rod():
     """Design 1 at 2000 rpm (mean strain 1.9e-3): the DER's steady state (the dt -> 0 limit of time stepping) at
-    2.06 and 1.03 mm edges, Richardson-extrapolated (second order), is the extensible rod, within 0.05%, and an
-    inextensible rod misses it by ~10x more: the flagellum's stretching is the difference."""
+    1.03 and 0.51 mm edges, Richardson-extrapolated (second order), is the extensible rod, within 0.01% (measured:
+    3e-5), and an inextensible rod misses it by 0.5-1.2%: the flagellum's stretching was the difference."""
     sc = DESIGN1.with_overrides(["motor.omega_rpm=2000"])
     vals = []
-    for edge in (2.055e-3, 1.0275e-3):
+    for edge in (1.0275e-3, 0.51375e-3):
         m = RobotModel(sc.with_overrides([f"flagellum.edge_length={edge}"]))
         st = summary(m, SteadySolver(m).solve(sc.omega_T))
         vals.append(np.array([st["Fx"], st["Tx"], *st["tip"]]))
@@ -219,8 +219,8 @@ def test_at_2000_rpm_the_converged_der_is_the_extensible_rod():
                          np.linalg.norm(limit[2:] - ref.tip) / np.linalg.norm(ref.tip - straight)])
 
     ext = from_scene(sc)
-    inext = from_scene(sc, extensible=False, guess=ext)
+    inext = from_scene(sc, extensible=False)
     e_ext, e_inext = err(ext), err(inext)
-    assert e_ext.max() < 5e-4, e_ext
+    assert e_ext.max() < 1e-4, e_ext
     assert e_inext.max() > 5e-3, e_inext                      # the tip: ~1.2% of its deflection
-    assert np.all(e_inext > 3 * e_ext), (e_ext, e_inext)
+    assert np.all(e_inext > 10 * e_ext), (e_ext, e_inext)
