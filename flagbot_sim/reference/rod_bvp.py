@@ -49,6 +49,7 @@ import numpy as np
 from scipy.integrate import solve_bvp
 
 from ..physics.medium import bending_stiffness, rft_coefficients
+from ..physics.network import section
 
 #: default solve_bvp relative residual tolerance
 DEFAULT_TOL = 1.0e-8
@@ -374,7 +375,7 @@ def from_scene(scene, omega: float | None = None, *, inertia: bool | None = None
                          "flagellum (helix_pitch = 0)")
     if inertia is None:
         inertia = "inertia" in scene.effects
-    rho_A = fl.density * math.pi * fl.radius ** 2 if inertia else 0.0
+    rho_A = fl.density * section(fl)[0] if inertia else 0.0
     EA = stretching_stiffness(scene) if extensible else math.inf
     return solve_clamped_rod(fl.length, scene.R_d, bending_stiffness(scene), *rft_coefficients(scene),
                              scene.omega_T if omega is None else float(omega), rho_A=rho_A, EA=EA, **kwargs)
@@ -382,8 +383,8 @@ def from_scene(scene, omega: float | None = None, *, inertia: bool | None = None
 
 def stretching_stiffness(scene) -> float:
     """EA = E pi r0^2 (N) of the scene's flagellum: the stiffness of the DER's elastic stretching springs
-    (physics/network.py build_network)."""
-    return scene.flagellum.youngs_modulus * math.pi * scene.flagellum.radius ** 2
+    (physics/network.py build_network, from the same network.section)."""
+    return scene.flagellum.youngs_modulus * section(scene.flagellum)[0]
 
 
 __all__ = ["RodSolution", "RodBVPError", "solve_clamped_rod", "from_scene", "stretching_stiffness", "DEFAULT_TOL"]
