@@ -124,6 +124,11 @@ def test_a_first_run_compiles_the_newton_step_in_the_background_for_the_next_run
     while "newton._newton" not in _cached_kernels(tmp_path) and time.monotonic() < deadline:
         time.sleep(0.5)
     assert "newton._newton" in _cached_kernels(tmp_path)
+    # the background process's lock lies in the kernel cache's own directory, beside the kernels' index files
+    # (it was written one level up: for numba's in-tree cache that is the package's source directory)
+    locks = list((tmp_path / "cache").rglob("flagbot_background.lock"))
+    newton_dirs = {f.parent for f in (tmp_path / "cache").rglob("newton._newton*.nbi")}
+    assert len(locks) == 1 and locks[0].parent in newton_dirs
     probe = ("import json; from flagbot_sim.physics import Simulation; from flagbot_sim.scene import load_scene; "
              "s = Simulation(load_scene('design1')); s.run(0.2); d = s.summary(); "
              "print(json.dumps([s.stepper._newton is not None, d['omega_h'], d['v']]))")

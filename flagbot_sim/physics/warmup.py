@@ -359,7 +359,9 @@ def _background(groups: list[str]) -> None:
     """In the background process: compile the groups unless another process is at it already."""
     import fcntl
     os.nice(10)
-    lock_dir = os.path.dirname(_dispatchers(groups)[0]._cache._cache_path)
+    # inside the kernel cache directory itself (numba's __pycache__ beside the source, or the per-user cache): the
+    # lock file never lands among the package's sources, where a `git add -A` picked it up
+    lock_dir = _dispatchers(groups)[0]._cache._cache_path
     os.makedirs(lock_dir, exist_ok=True)
     with open(os.path.join(lock_dir, "flagbot_background.lock"), "w") as lock:
         try:
