@@ -57,6 +57,8 @@ ROS_PREFIXES = ("rcl", "rmw", "rosidl", "rosbag2", "ros2", "tf2", "launch", "mes
 # a ROS prefix is set, as rosbag2 does, and reads them from the package's own copies elsewhere)
 #: layers that import no ROS library: ROS 2 is an optional extra, loaded only by the adapters and commands
 ROS_FREE = {"base", "physics", "support", "libraries"}
+#: layers that know nothing of command lines: argparse belongs to the commands (and the adapters' own scripts)
+ARGPARSE_FREE = {"physics", "libraries"}
 #: what the base layer may import besides the standard library (docs/architecture.md)
 BASE_EXTERNAL = {"numpy", "scipy", "matplotlib"}
 
@@ -233,6 +235,8 @@ def external_violations(module: str, external: set[str]) -> list[str]:
         bad |= {e for e in external if e not in sys.stdlib_module_names and e not in BASE_EXTERNAL}
     if layer in ROS_FREE:
         bad |= {e for e in external if is_ros(e)}
+    if layer in ARGPARSE_FREE:
+        bad |= {e for e in external if e == "argparse"}
     return [f"{module} ({layer}) imports {e}" for e in sorted(bad)]
 
 
@@ -432,6 +436,9 @@ def test_the_library_rules_fail_on_a_violation():
     assert external_violations("flagbot_sim.bag.fake", ext) == ["flagbot_sim.bag.fake (support) imports std_msgs"]
     _, ext = parse_imports("flagbot_sim.ros.fake", "import rclpy\n", modules)
     assert external_violations("flagbot_sim.ros.fake", ext) == []
+    # a library knows no command line (beam/timing.py was an argparse script among the libraries)
+    _, ext = parse_imports("flagbot_sim.beam.fake", "import argparse\n", modules)
+    assert external_violations("flagbot_sim.beam.fake", ext) == ["flagbot_sim.beam.fake (libraries) imports argparse"]
     # ROS 2 packages that are not in the list, known by their names' conventions
     _, ext = parse_imports("flagbot_sim.device", "def f():\n    import tf2_ros\n    from action_msgs.msg import G\n"
                            "    import rclpy_message_converter, example_interfaces, rmw_fastrtps_cpp\n", modules)

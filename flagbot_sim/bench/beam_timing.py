@@ -1,4 +1,4 @@
-"""Wall time of beam-theory solves: ``python -m flagbot_sim.beam.timing [--repeat 20]``.
+"""Wall time of beam-theory solves: ``python -m flagbot_sim.bench.beam_timing [--repeat 20]``.
 
 A measurement script, not a test (timings depend on the machine); docs/beam.md quotes its output.
 Each full balance solve starts cold (no warm start), as a ROS beam_node answering one new omega_T would.
@@ -16,9 +16,9 @@ import scipy
 
 from ..scene import load_scene
 from ..units import RPM
-from .balance import REGIMES, solve_balance, solve_balance_curve
-from .nonlinear import solve_nlb
-from .params import BeamParams
+from ..beam.balance import REGIMES, solve_balance, solve_balance_curve
+from ..beam.nonlinear import solve_nlb
+from ..beam.params import BeamParams
 
 
 def _times(fn, repeat: int) -> list[float]:
