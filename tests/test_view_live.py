@@ -151,6 +151,16 @@ def test_the_server_listens_on_loopback_only_and_a_taken_port_is_a_clear_error()
         LiveView(port=70000)
 
 
+@pytest.mark.parametrize("args,code", [(["--help"], 0), (["--out", "x.json"], 2)])
+def test_the_layout_writer_given_any_argument_says_what_it_does_and_writes_nothing(args, code):
+    """`python -m flagbot_sim.view.layout --help` rewrote the shipped file (it read no arguments)."""
+    before = live.LAYOUT_FILE.stat().st_mtime_ns
+    p = subprocess.run([sys.executable, "-m", "flagbot_sim.view.layout", *args], cwd=ROOT, capture_output=True,
+                       text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert p.returncode == code and "usage: python -m flagbot_sim.view.layout" in p.stderr
+    assert live.LAYOUT_FILE.stat().st_mtime_ns == before
+
+
 def test_the_shipped_layout_is_current_and_shows_only_what_the_view_publishes():
     shipped = live.LAYOUT_FILE.read_text()
     assert shipped == layout.text(), "run: python -m flagbot_sim.view.layout"

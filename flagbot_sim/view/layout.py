@@ -67,5 +67,9 @@ def text() -> str:
 
 
 if __name__ == "__main__":
+    if sys.argv[1:]:                  # --help or anything else: say what it does, write nothing
+        print(f"usage: python -m flagbot_sim.view.layout\n\nrewrites {LAYOUT_FILE} from this module (no arguments)",
+              file=sys.stderr)
+        sys.exit(0 if sys.argv[1:] in (["-h"], ["--help"]) else 2)
     LAYOUT_FILE.write_text(text())
     print(f"wrote {LAYOUT_FILE}", file=sys.stderr)
