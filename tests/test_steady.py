@@ -5,6 +5,7 @@ enough that their own error is below 1e-4) and against the independent rod BVP; 
 time-stepped dynamics; its failures are loud.
 """
 import json
+import math
 
 import numpy as np
 import pytest
@@ -287,3 +288,17 @@ def test_the_stability_report_is_reproducible_to_the_last_digit():
     assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
     sa, sb = json.loads(a.stdout)["stability"], json.loads(b.stdout)["stability"]
     assert sa == sb and isinstance(sa["slowest_rate"], float)
+
+
+def test_gravity_across_the_axis_is_refused_with_its_reason_and_along_it_is_solved():
+    """Gravity across the robot's axis turns in the frame turning with the robot: no relative equilibrium exists
+    (the solver used to stall at omega_T = 0.01 rad/s and say only that); along the axis it keeps the symmetry."""
+    effects = "scene.effects=['inertia','rft','head_drag','head_torque','motor','gravity']"
+    sc = load_scene("design1", [effects, "flagellum.length=0.03"])
+    with pytest.raises(SteadyFailed, match=r"gravity\.g = \[0\.0, 0\.0, -9\.81\] has a part across the robot's axis"):
+        SteadySolver(RobotModel(sc)).solve(sc.omega_T)
+    sc = load_scene("design1", [effects, "flagellum.length=0.03", "gravity.g=[-9.81,0,0]"])
+    sol = SteadySolver(RobotModel(sc)).solve(sc.omega_T)
+    no_g = load_scene("design1", ["flagellum.length=0.03"])
+    v0 = SteadySolver(RobotModel(no_g)).solve(no_g.omega_T).v
+    assert math.isfinite(sol.v) and sol.v != v0          # its weight along -x changes the swimming speed

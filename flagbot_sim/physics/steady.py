@@ -527,6 +527,12 @@ class SteadySolver:
         t0 = time.perf_counter()
         problem = self.problem
         target = float(omega_T)
+        scene = self.model.scene
+        if "gravity" in scene.scene.effects and (scene.gravity.g[1] != 0.0 or scene.gravity.g[2] != 0.0):
+            raise SteadyFailed(f"gravity.g = {list(scene.gravity.g)} has a part across the robot's axis (x): in the "
+                               "frame turning with the robot it turns, so no relative equilibrium exists (only "
+                               "gravity along x keeps the axial symmetry); a time-stepped run (flagbot run) shows "
+                               "the motion")
         if start is None:
             q, omega_t, U = self.initial_guess(target)
             ratio = omega_t / target if target else 0.0          # omega_t / omega_T of the guess
