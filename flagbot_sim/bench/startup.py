@@ -180,9 +180,11 @@ def wait_for_background_compile(cache: Path, appear: float = 2.0, limit: float =
     (in the cache directory, taken at its start) is free. A lock that does not appear within ``appear`` s means no
     background compile was started."""
     import fcntl
+
+    from ..physics.warmup import BACKGROUND_LOCK
     t0 = time.monotonic()
     while True:
-        locks = list(cache.rglob("flagbot_background.lock"))
+        locks = list(cache.rglob(BACKGROUND_LOCK))
         if locks or time.monotonic() - t0 > appear:
             break
         time.sleep(0.05)

@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 from . import warmup
+from .error_estimate import output_names
 from .medium import coefficients_report
 from .model import RobotModel
 from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, summary_fields
@@ -211,11 +212,9 @@ class Simulation:
         approach is not clearly geometric; NaN before the rule has compared three samples). Clamped: Fx, Tx and
         the tip over L; free robot: omega_h, omega_t, v."""
         tails = self.steady_detector.tails
-        clamped = self.scene.clamped
-        names = ("Fx", "Tx", "tip") if clamped else ("omega_h", "omega_t", "v")
         if len(tails) == 0:
-            return {k: math.nan for k in names}
-        if clamped:
+            return {k: math.nan for k in output_names(self.scene)}
+        if self.scene.clamped:
             return {"Fx": float(tails[3]), "Tx": float(tails[4]), "tip": float(np.linalg.norm(tails[:3]))}
         ss = self.steady_state()
         w_h, w_t = abs(ss["omega_h"]), abs(ss["omega_t"])

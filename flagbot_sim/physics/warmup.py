@@ -322,6 +322,10 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
     return time.perf_counter() - t0
 
 
+#: the background compile's lock file, in the kernel cache's own directory: held while it compiles
+BACKGROUND_LOCK = "flagbot_background.lock"
+
+
 def _compile_in_background(groups: list[str]) -> None:
     """Compile the groups into the cache in a detached, low-priority process that outlives this one if need be
     (its output discarded; one at a time: a second finds the first's lock taken and ends at once)."""
@@ -363,7 +367,7 @@ def _background(groups: list[str]) -> None:
     # lock file never lands among the package's sources, where a `git add -A` picked it up
     lock_dir = _dispatchers(groups)[0]._cache._cache_path
     os.makedirs(lock_dir, exist_ok=True)
-    with open(os.path.join(lock_dir, "flagbot_background.lock"), "w") as lock:
+    with open(os.path.join(lock_dir, BACKGROUND_LOCK), "w") as lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
