@@ -426,7 +426,8 @@ def _check_consistency(sc: Scene) -> None:
         raise SceneError(f"flagellum.edge_length = {fl.edge_length} m must not exceed flagellum.length = "
                          f"{fl.length} m")
     if fl.length / fl.edge_length > 20000:
-        raise SceneError(f"flagellum.edge_length = {fl.edge_length} m gives more than 20000 edges per flagellum")
+        raise SceneError(f"flagellum.length = {fl.length} m over flagellum.edge_length = {fl.edge_length} m gives "
+                         f"{fl.length / fl.edge_length:.3g} edges per flagellum, more than 20000")
     _check_proportions(sc)
     _check_helix(sc)
     if sc.numerics.min_dt >= sc.time.dt:
