@@ -4,6 +4,7 @@
     python3 dev.py run      # create .venv if needed, install, compile, run the main job (flagbot demo: ROS nodes)
     python3 dev.py test     # create .venv if needed, install, compile, run the test suite (extra args go to pytest)
     python3 dev.py setup    # only create/update .venv and compile the kernels
+    python3 dev.py fuzz [N] # the property tests with fresh random examples, N (default 3000) per test
 
 The Makefile targets call this file. DDS traffic is kept on this machine: every job runs with
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
@@ -73,12 +74,22 @@ def test(args: list[str]) -> None:
     sh(PY, "-m", "pytest", "-q", "tests", *args)
 
 
+def fuzz(args: list[str]) -> None:
+    """The suite's property tests draw a fixed set of examples (its verdict is the same on every run); this
+    explores: fresh random ones, as many per test as asked."""
+    n = args[0] if args and args[0].isdigit() else "3000"
+    setup()
+    os.environ["FLAGBOT_FUZZ"] = n
+    sh(PY, "-m", "pytest", "-q", "tests/test_scene_fuzz.py", "-k", "random or override",
+       "--hypothesis-show-statistics", *args[1 if args and args[0].isdigit() else 0:])
+
+
 def main() -> None:
-    if len(sys.argv) < 2 or sys.argv[1] not in ("setup", "run", "test"):
+    if len(sys.argv) < 2 or sys.argv[1] not in ("setup", "run", "test", "fuzz"):
         sys.exit(__doc__)
     cmd, rest = sys.argv[1], sys.argv[2:]
     try:
-        {"setup": lambda a: setup(), "run": run, "test": test}[cmd](rest)
+        {"setup": lambda a: setup(), "run": run, "test": test, "fuzz": fuzz}[cmd](rest)
     except subprocess.CalledProcessError as exc:
         sys.exit(exc.returncode)
 

@@ -11,6 +11,7 @@ import pytest
 import scene_fuzz as F
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from conftest import FUZZ_EXAMPLES
 
 from flagbot_sim.scene import SceneError, load_scene
 from flagbot_sim.scene_files import resolve_scene_path
@@ -88,7 +89,7 @@ def mutated_scene(draw):
     return F.toml_text(data).encode(), touched + sorted({k.split(".")[0] for k in touched})
 
 
-@settings(max_examples=300, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
 @given(case=mutated_scene())
 def test_random_combined_mutations_are_refused_in_one_line_or_run(case):
     data, touched = case
@@ -102,7 +103,7 @@ def test_random_combined_mutations_are_refused_in_one_line_or_run(case):
 
 # ---------------------------------------------------------------- the override path (CLI --set, ROS scene_overrides)
 
-@settings(max_examples=300, deadline=None, database=None)
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, database=None)
 @given(key=st.sampled_from(KEYS), value=VALUES)
 def test_override_values_of_any_type_are_refused_in_one_line_or_accepted(key, value):
     dotted = f"{key[0]}.{key[1]}"
