@@ -135,6 +135,11 @@ def test_flagbot_steady_and_run_report_their_errors(tmp_path):
     out = json.loads(r.stdout)
     assert set(out["error_estimate"]) == {"omega_h", "omega_t", "v"}
     assert set(out["error_estimate_time"]) == set(out["error_estimate_space"]) == {"omega_h", "omega_t", "v"}
+    # a run stopped before it settles: its error bars do not claim to bound the distance from the steady state
+    assert out["steady"] is False
+    r = flagbot("run", "design1", "--duration", "1", "--quiet")
+    verdict = [line for line in r.stdout.splitlines() if "steady over the last" in line]
+    assert " +/- " in r.stdout and len(verdict) == 1 and "numerical error alone" in verdict[0], r.stdout
 
 
 def test_percentages_read_as_the_summary_prints_them():

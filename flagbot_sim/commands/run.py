@@ -128,7 +128,12 @@ def format_summary(scene, out: dict) -> str:
     if out.get("rft_coefficients"):
         from ..physics.medium import describe
         lines.append("  " + describe(out["rft_coefficients"]))
-    lines.append(f"  steady over the last {g('window', '.2f')} s: {'yes' if out.get('steady') else 'NO (run longer)'}")
+    verdict = "yes" if out.get("steady") else "NO (run longer)"
+    if not out.get("steady") and out.get("error_estimate"):
+        # the +/- bars are the numerical error of this transient state, not its distance from the steady state
+        verdict = ("NO (run longer): the +/- above are the numerical error alone; how far these values still are "
+                   "from the steady state is not estimated")
+    lines.append(f"  steady over the last {g('window', '.2f')} s: {verdict}")
     timing = f"{g('wall_seconds', '.2f')} s wall, real-time factor {g('real_time_factor', '.2f')}"
     if out.get("startup_seconds") is not None:
         timing += f", start-up {g('startup_seconds', '.2f')} s"
