@@ -161,8 +161,19 @@ class Listener:
     def diag_values(self) -> dict:
         return self.diag_values_of(self.msgs["diag"][-1])
 
+    #: the streams sim_node publishes with /clock in every tick, stamped alike
+    TICK_STREAMS = ("pose", "odom", "joints")
+
     def run_until(self, t: float, timeout: float = 120.0) -> None:
-        spin_until(self.node, lambda: self.clock >= t, timeout, f"simulation time {t} s")
+        """Spin until /clock reads ``t`` and every per-tick stream received so far has caught up with it too.
+        The clock message of a tick is published first: on a loaded machine the listener may take it while the
+        same tick's (and earlier ticks') other messages still wait in their queues, so a test that read them
+        after a bare clock wait would find a gap (CI did, at load 8: no joint states in [4.6, 23.4] s)."""
+        def caught_up():
+            if self.clock < t:
+                return False
+            return all(t_of(self.msgs[k][-1].header.stamp) >= t for k in self.TICK_STREAMS if self.msgs[k])
+        spin_until(self.node, caught_up, timeout, f"simulation time {t} s on /clock and {', '.join(self.TICK_STREAMS)}")
 
 
 def _floats(m):
