@@ -199,7 +199,7 @@ import sys, threading, time
 from numba.core import event
 from flagbot_sim.physics import warmup
 threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
-assert not warmup._single_threaded_linux()
+assert not warmup._can_fork()
 groups = ["arrow", "frames", "stretch", "clamp", "rft", "head_torque"]   # (enough work for a helper; no kernel
                                                                       # of one is another's callee)
 mine, theirs = warmup.split(groups, 2, warmup.HELPER_START["spawn"])
@@ -221,6 +221,52 @@ print(repr((mine, theirs, lines, sorted(here))))
         assert not {n.split(".")[1] for n in _cache_names(g)} & set(here), g
     for g in mine:
         assert {n.split(".")[1] for n in _cache_names(g)} <= set(here), g
+
+
+def test_a_numpy_process_forks_its_helper_despite_openblas_worker_threads(tmp_path):
+    """numpy's and scipy's OpenBLAS each start a pool of worker threads at import, so `flagbot run` is never
+    single-threaded; those threads alone do not stop the fork (OpenBLAS stops its pool before a fork and starts
+    it again on its next call): the helper is forked, runs LAPACK (the arrow solver's warm-up) in the child,
+    reports, and what it compiled is loaded here, not compiled again."""
+    code = """
+import os
+import numpy as np, scipy.linalg, scipy.sparse.linalg
+from numba.core import event
+from flagbot_sim.physics import warmup
+a = np.random.default_rng(0).random((300, 300))
+scipy.linalg.lu_factor(a @ a)                        # both BLAS pools started
+threads = len(os.listdir("/proc/self/task"))
+assert threads == 1 + warmup._openblas_workers(), (threads, warmup._openblas_workers())
+assert warmup._can_fork()
+forked = []
+init = warmup._Helper.__init__
+def spy(self, groups):
+    init(self, groups)
+    forked.append(self.proc is None)
+warmup._Helper.__init__ = spy
+groups = ["arrow", "frames", "stretch", "clamp", "rft", "head_torque"]
+lines = []
+with event.install_recorder("numba:compile") as rec:
+    warmup.ensure_compiled(notify=lines.append, groups=groups)
+here = {ev.data["dispatcher"].py_func.__name__ for _, ev in rec.buffer}
+mine, theirs = warmup.split(groups, 2, warmup.HELPER_START["fork"])
+print(repr((threads, forked, mine, theirs, lines, sorted(here))))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("OPENBLAS_NUM_THREADS", None)
+    env.pop("OMP_NUM_THREADS", None)
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr
+    threads, forked, mine, theirs, lines, here = eval(p.stdout.strip().splitlines()[-1])
+    if os.cpu_count() > 1:
+        assert threads > 1                              # the case in point: BLAS workers were running
+    assert forked == [True] and theirs and "in 2 processes" in lines[0], (forked, lines)
+    assert lines[-1].startswith("flagbot_sim: kernels compiled in"), lines
+    cached = _cached_kernels(tmp_path)
+    for g in theirs:
+        assert _cache_names(g) <= cached, g
+        assert not {n.split(".")[1] for n in _cache_names(g)} & set(here), g
 
 
 def _cache_names(group: str) -> set[str]:

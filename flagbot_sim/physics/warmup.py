@@ -330,7 +330,7 @@ def _compile_in_background(groups: list[str]) -> None:
     """Compile the groups into the cache in a detached, low-priority process that outlives this one if need be
     (its output discarded; one at a time: a second finds the first's lock taken and ends at once)."""
     try:
-        if _single_threaded_linux():
+        if _can_fork():
             pid = os.fork()
             if pid == 0:                          # the child: its own session, no terminal, no inherited output
                 code = 1
@@ -421,7 +421,7 @@ class _Compile:
         with _fewer_collections():
             _numba_set_up()                   # before the fork: the helper inherits numba's compiler set up
             mine, theirs = split(self.groups, _cores(),
-                                 HELPER_START["fork" if _single_threaded_linux() else "spawn"])
+                                 HELPER_START["fork" if _can_fork() else "spawn"])
             self.share = [mine, theirs]
             self.t_compile = time.perf_counter()
             how = "in 2 processes" if theirs else "in 1 process"
@@ -523,15 +523,15 @@ def _one(x):
 class _Helper:
     """The helper process: the groups it compiles, its 'done GROUP' lines as they come (``lines``), ``wait``.
 
-    Forked from this process where that is safe (Linux, and this process has a single thread: no lock can be
-    held by a thread the child would not have): the child starts with the interpreter, numpy, numba and its
+    Forked from this process where that is safe (Linux, and no thread besides this one but OpenBLAS's workers:
+    :func:`_can_fork`): the child starts with the interpreter, numpy, numba and its
     compiler already set up, where a fresh interpreter takes about a second to get there. Otherwise (a ROS node
     has its middleware's threads, other systems) a fresh interpreter runs this module."""
 
     def __init__(self, groups: list[str]):
         self.pid = self.proc = None
         self._reaping, self._reaped = threading.Lock(), False
-        if _single_threaded_linux():
+        if _can_fork():
             r, w = os.pipe()
             pid = os.fork()
             if pid == 0:                          # the child: compile, report, and leave without any clean-up
@@ -571,14 +571,52 @@ class _Helper:
         self.wait()
 
 
-def _single_threaded_linux() -> bool:
+def _can_fork() -> bool:
+    """Whether a helper can be forked from this process (Linux): only if no other thread of it could hold a lock
+    the child needs. Threads besides this one are allowed only as OpenBLAS's workers: numpy and scipy each load
+    an OpenBLAS that starts a pool of (its thread count - 1) workers at import, so without them no numpy program
+    (`flagbot run`, `flagbot steady`) would ever count as single-threaded; OpenBLAS stops its pool before a fork
+    (its pthread_atfork handler, ``openblas_fork_handler``) and starts it again at its next call, in parent and
+    child alike. A ROS node has its middleware's threads: it is not forked."""
     if not sys.platform.startswith("linux") or not hasattr(os, "fork"):
         return False
     try:
-        with open("/proc/self/status") as f:
-            return any(line.split() == ["Threads:", "1"] for line in f)
+        threads = len(os.listdir("/proc/self/task"))
     except OSError:
         return False
+    return threads <= 1 + (_openblas_workers() if threads > 1 else 0)
+
+
+#: what OpenBLAS builds name their thread count's getter (plain, 64-bit interface, scipy's wheels' prefix)
+_OPENBLAS_GET_THREADS = ("openblas_get_num_threads", "openblas_get_num_threads64_",
+                         "scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_")
+
+
+def _openblas_workers() -> int:
+    """The worker threads of the OpenBLAS libraries this process has loaded (0 for a library without the fork
+    handler or the getter: its threads then count as foreign)."""
+    import ctypes
+    try:
+        with open("/proc/self/maps") as f:
+            paths = {line.split(maxsplit=5)[5].strip() for line in f if "openblas" in line.lower()}
+    except (OSError, IndexError):
+        return 0
+    workers = 0
+    for path in sorted(paths):
+        if "openblas" not in os.path.basename(path).lower():
+            continue
+        try:
+            lib = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)     # (loaded already: no new load)
+            lib.openblas_fork_handler                                      # noqa: B018 (raises if absent)
+        except (OSError, AttributeError):
+            continue
+        for name in _OPENBLAS_GET_THREADS:
+            getter = getattr(lib, name, None)
+            if getter is not None:
+                getter.restype = ctypes.c_int
+                workers += max(0, getter() - 1)
+                break
+    return workers
 
 
 def _start_helper(groups: list[str]) -> _Helper | None:
