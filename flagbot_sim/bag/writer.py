@@ -10,15 +10,19 @@ from __future__ import annotations
 
 import errno
 import os
+import struct
+import tempfile
 import threading
 import time
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Callable, Mapping
 
 from mcap.data_stream import RecordBuilder
-from mcap.records import Channel, Schema
-from mcap.writer import CompressionType, Writer
+from mcap.opcode import Opcode
+from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Metadata,
+                          MetadataIndex, Schema, Statistics, SummaryOffset)
 
 from .format import (DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL, LIBRARY, MESSAGE_ENCODING, PROFILE,
                      ROSBAG2_METADATA_NAME, RUN_METADATA_NAME, SCHEMA_ENCODING, BagError, BagWriteError)
@@ -47,6 +51,255 @@ def _refuse_link(p: Path) -> None:
                             "recording would create that file instead; give the file's own name")
     if not p.is_file():
         raise BagWriteError(f"cannot record to {p}: it is a symbolic link to {target!r}, which is not a regular file")
+
+
+_MAGIC = b"\x89MCAP0\r\n"
+_RECORD = struct.Struct("<BQ")                  # opcode, body length
+_MESSAGE = struct.Struct("<BQHIQQ")             # ... channel id, sequence, log time, publish time (then the data)
+_INDEX_ENTRY = struct.Struct("<QQ")             # message index: log time, offset in the chunk's records
+_COPY_BLOCK = 1 << 16
+
+
+def _record_bytes(record) -> bytes:
+    b = RecordBuilder()
+    record.write(b)
+    return b.end()
+
+
+class McapStreamWriter:
+    """An MCAP writer whose memory does not grow with the length of the recording.
+
+    It writes what ``mcap.writer.Writer`` (all indexes, statistics, repeated schemas and channels, summary offsets,
+    summary CRC) writes, record for record, for the calls BagWriter and :func:`recover` make (``start``,
+    ``register_schema``, ``register_channel``, ``add_message``, ``add_metadata``, ``add_attachment``, ``flush``,
+    ``finish``) with the same arguments. The difference: mcap's writer keeps a ``ChunkIndex`` object (with a dict
+    of message-index offsets, one per channel in the chunk) for every chunk until ``finish()``, ~1.5 KB per chunk
+    for a sim_node recording's 17 topics, so with a chunk every 0.1 s the recorder grew by ~50 MB per recorded
+    hour (docs/recording.md). Here each chunk index is serialized as soon as its chunk is written and appended to
+    an anonymous temporary file (``spill_dir``, default the system's; BagWriter gives the recording's own
+    directory: same disk, and not a tmpfs in RAM); ``finish()`` copies it into the summary section in blocks,
+    computing the summary CRC as it goes. What stays in memory is bounded by the number of channels, schemas and
+    metadata records and by the chunk being filled. The temporary file has no name (it disappears with the
+    process, a crash included) and takes ~60 + 10 x channels bytes per chunk until :meth:`close`.
+
+    ``stream`` must be a binary file object with ``tell()``; others may write records to it between calls (as
+    BagWriter writes schemas and channels outside chunks): offsets are taken from ``tell()``.
+    """
+
+    def __init__(self, stream: BinaryIO, *, chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = "zstd",
+                 spill_dir: str | os.PathLike | None = None):
+        if compression == "zstd":
+            import zstandard
+            self._compress = zstandard.compress
+        elif compression == "lz4":
+            import lz4.frame
+            self._compress = lz4.frame.compress
+        elif compression == "":
+            self._compress = None
+        else:
+            raise BagError(f"unknown compression {compression!r} (zstd, lz4 or '')")
+        self._out = stream
+        self._compression = compression
+        self._chunk_size = chunk_size
+        self._spill_dir = spill_dir
+        self._spill: BinaryIO | None = None       # serialized ChunkIndex records, in file order
+        self._spill_bytes = 0
+        self._schemas: dict[int, Schema] = {}
+        self._channels: dict[int, Channel] = {}
+        self._metadata_indexes: list[MetadataIndex] = []
+        self._attachment_indexes: list[AttachmentIndex] = []
+        self._counts: dict[int, int] = {}          # channel id -> messages, in order of each channel's first message
+        self.message_count = 0
+        self.chunk_count = 0
+        self._start_time = 0
+        self._end_time = 0
+        # the chunk being filled: its records (uncompressed), log-time range, messages and per-channel index
+        self._chunk = bytearray()
+        self._chunk_messages = 0
+        self._chunk_start = 0
+        self._chunk_end = 0
+        self._chunk_index: dict[int, list[int]] = {}   # channel id -> flat [log time, offset, log time, offset, ...]
+        self.finished = False
+
+    # -- records outside chunks
+    def _write(self, data: bytes) -> None:
+        self._out.write(data)
+
+    def start(self, profile: str = "", library: str = "") -> None:
+        self._open_spill()
+        self._write(_MAGIC)
+        self._write(_record_bytes(Header(profile=profile, library=library)))
+
+    def _open_spill(self) -> None:
+        if self._spill is not None:
+            return
+        try:
+            self._spill = tempfile.TemporaryFile(prefix=".flagbot-chunk-index-", dir=self._spill_dir)
+        except OSError:
+            if self._spill_dir is None:
+                raise
+            self._spill = tempfile.TemporaryFile(prefix=".flagbot-chunk-index-")   # e.g. a directory not ours
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        offset = self._out.tell()
+        record = _record_bytes(Metadata(name=name, metadata=dict(data)))
+        self._write(record)
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(record), name=name))
+
+    def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str, data: bytes) -> None:
+        offset = self._out.tell()
+        record = _record_bytes(Attachment(create_time=create_time, log_time=log_time, name=name,
+                                          media_type=media_type, data=data))
+        self._write(record)
+        self._attachment_indexes.append(AttachmentIndex(offset=offset, length=len(record), log_time=log_time,
+                                                        create_time=create_time, data_size=len(data), name=name,
+                                                        media_type=media_type))
+
+    # -- registrations (also put into the chunk being filled, as mcap's writer does)
+    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        sid = len(self._schemas) + 1
+        schema = Schema(id=sid, name=name, encoding=encoding, data=data)
+        self._schemas[sid] = schema
+        self._chunk += _record_bytes(schema)
+        self._maybe_finalize_chunk()
+        return sid
+
+    def register_channel(self, topic: str, message_encoding: str, schema_id: int,
+                         metadata: Mapping[str, str] | None = None) -> int:
+        cid = len(self._channels) + 1
+        channel = Channel(id=cid, topic=topic, message_encoding=message_encoding, schema_id=schema_id,
+                          metadata=dict(metadata or {}))
+        self._channels[cid] = channel
+        self._chunk += _record_bytes(channel)
+        self._maybe_finalize_chunk()
+        return cid
+
+    # -- messages
+    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
+        if self.message_count == 0:
+            self._start_time = self._end_time = log_time
+        else:
+            self._start_time = min(self._start_time, log_time)
+            self._end_time = max(self._end_time, log_time)
+        self._counts[channel_id] = self._counts.get(channel_id, 0) + 1
+        self.message_count += 1
+        if self._chunk_messages == 0:
+            self._chunk_start = self._chunk_end = log_time
+        else:
+            self._chunk_start = min(self._chunk_start, log_time)
+            self._chunk_end = max(self._chunk_end, log_time)
+        entries = self._chunk_index.get(channel_id)
+        if entries is None:
+            entries = self._chunk_index[channel_id] = []
+        entries += (log_time, len(self._chunk))
+        self._chunk_messages += 1
+        self._chunk += _MESSAGE.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time)
+        self._chunk += data
+        self._maybe_finalize_chunk()
+
+    def _maybe_finalize_chunk(self) -> None:
+        if len(self._chunk) > self._chunk_size:
+            self._finalize_chunk()
+
+    def _finalize_chunk(self) -> None:
+        if self._chunk_messages == 0:
+            return                      # (registrations alone stay for the next chunk, as in mcap's writer)
+        raw = bytes(self._chunk)
+        data = self._compress(raw) if self._compress else raw
+        chunk = Chunk(compression=self._compression, data=data, message_start_time=self._chunk_start,
+                      message_end_time=self._chunk_end, uncompressed_crc=zlib.crc32(raw), uncompressed_size=len(raw))
+        record = _record_bytes(chunk)
+        chunk_offset = self._out.tell()
+        indexes, offsets = bytearray(), {}
+        index_start = chunk_offset + len(record)
+        for cid, entries in self._chunk_index.items():
+            offsets[cid] = index_start + len(indexes)
+            indexes += _RECORD.pack(Opcode.MESSAGE_INDEX, 6 + 8 * len(entries))
+            indexes += struct.pack(f"<HI{len(entries)}Q", cid, 8 * len(entries), *entries)
+        self._write(record)
+        self._write(bytes(indexes))
+        index = ChunkIndex(message_start_time=self._chunk_start, message_end_time=self._chunk_end,
+                           chunk_start_offset=chunk_offset, chunk_length=len(record), message_index_offsets=offsets,
+                           message_index_length=len(indexes), compression=self._compression,
+                           compressed_size=len(data), uncompressed_size=len(raw))
+        self._open_spill()
+        spilled = _record_bytes(index)
+        self._spill.write(spilled)
+        self._spill_bytes += len(spilled)
+        self.chunk_count += 1
+        self._chunk = bytearray()
+        self._chunk_messages = 0
+        self._chunk_index = {}
+
+    def flush(self) -> None:
+        """Close the chunk being filled (if it has a message), write it and its message indexes, flush the stream
+        to the OS (no fsync)."""
+        self._finalize_chunk()
+        self._out.flush()
+
+    # -- the end
+    def finish(self) -> None:
+        """Close the last chunk, write the data end, the summary (schemas, channels, statistics, chunk indexes,
+        attachment and metadata indexes, summary offsets), the footer with the summary CRC and the closing magic.
+        Does not close ``stream``; does :meth:`close` the temporary file."""
+        self._finalize_chunk()
+        self._write(_record_bytes(DataEnd(data_section_crc=0)))
+        summary_start = pos = self._out.tell()
+        crc = 0
+        offsets = []
+
+        def put(data: bytes) -> None:
+            nonlocal crc, pos
+            self._write(data)
+            crc = zlib.crc32(data, crc)
+            pos += len(data)
+
+        def group(opcode: Opcode, records) -> None:
+            start = pos
+            for r in records:
+                put(_record_bytes(r))
+            offsets.append(SummaryOffset(group_opcode=opcode, group_start=start, group_length=pos - start))
+
+        group(Opcode.SCHEMA, self._schemas.values())
+        group(Opcode.CHANNEL, self._channels.values())
+        group(Opcode.STATISTICS, [Statistics(
+            attachment_count=len(self._attachment_indexes), channel_count=len(self._channels),
+            channel_message_counts=self._counts, chunk_count=self.chunk_count, message_count=self.message_count,
+            metadata_count=len(self._metadata_indexes), message_start_time=self._start_time,
+            message_end_time=self._end_time, schema_count=len(self._schemas))])
+        start = pos
+        if self._spill is not None:
+            self._spill.flush()
+            self._spill.seek(0)
+            left = self._spill_bytes
+            while left > 0:
+                block = self._spill.read(min(_COPY_BLOCK, left))
+                if not block:
+                    raise OSError(errno.EIO, "the temporary chunk index file ended early")
+                put(block)
+                left -= len(block)
+        offsets.append(SummaryOffset(group_opcode=Opcode.CHUNK_INDEX, group_start=start, group_length=pos - start))
+        group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
+        group(Opcode.METADATA_INDEX, self._metadata_indexes)
+        offset_start = pos
+        for o in offsets:
+            put(_record_bytes(o))
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, offset_start), crc)
+        self._write(_record_bytes(Footer(summary_start=summary_start, summary_offset_start=offset_start,
+                                         summary_crc=crc)))
+        self._write(_MAGIC)
+        self._out.flush()
+        self.finished = True
+        self.close()
+
+    def close(self) -> None:
+        """Release the temporary chunk index file (the summary can then no longer be written)."""
+        spill, self._spill = self._spill, None
+        if spill is not None:
+            try:
+                spill.close()
+            except OSError:
+                pass
 
 
 @dataclass
@@ -102,8 +355,7 @@ class BagWriter:
                  chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = "zstd",
                  flush_interval: float = DEFAULT_FLUSH_INTERVAL, fsync_interval: float | None = None,
                  overwrite: bool = False, clock: Callable[[], float] = time.monotonic):
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE,
-                "": CompressionType.NONE}.get(compression)
+        comp = {"zstd": "zstd", "lz4": "lz4", "none": "", "": ""}.get(compression)
         if comp is None:
             raise BagError(f"unknown compression {compression!r} (zstd, lz4, none)")
         run_record = None
@@ -137,7 +389,9 @@ class BagWriter:
             self.path = getattr(path, "name", "<stream>")
             self._file = path
             self._owns_file = False
-        self._writer = Writer(self._file, chunk_size=chunk_size, compression=comp, enable_crcs=True)
+        # chunk indexes go to an unnamed temporary file beside the recording until close (McapStreamWriter)
+        spill_dir = str(Path(self.path).parent) if self._owns_file else None
+        self._writer = McapStreamWriter(self._file, chunk_size=chunk_size, compression=comp, spill_dir=spill_dir)
         self._lock = threading.RLock()
         self._clock = clock
         self.flush_interval = flush_interval
@@ -179,6 +433,7 @@ class BagWriter:
     def _abandon(self) -> None:
         """The file could not even take its header: close it and remove it (nothing in it is worth keeping)."""
         self.closed = True
+        self._writer.close()
         if self._owns_file:
             try:
                 self._file.close()
@@ -298,6 +553,7 @@ class BagWriter:
         with self._lock:
             if not self.closed:
                 self._guard(self._writer.finish)
+                self._writer.close()        # after an error too: the temporary chunk index file goes
                 self.closed = True
                 if self._owns_file:
                     try:
