@@ -9,6 +9,7 @@ decoded on its own when an earlier one is damaged. The OS page cache survives SI
 from __future__ import annotations
 
 import errno
+import io
 import os
 import struct
 import tempfile
@@ -82,8 +83,9 @@ class McapStreamWriter:
     metadata records and by the chunk being filled. The temporary file has no name (it disappears with the
     process, a crash included) and takes ~60 + 10 x channels bytes per chunk until :meth:`close`.
 
-    ``stream`` must be a binary file object with ``tell()``; others may write records to it between calls (as
-    BagWriter writes schemas and channels outside chunks): offsets are taken from ``tell()``.
+    ``stream`` is a binary file object with ``tell()`` (a raw one is buffered, as mcap's writer does: then write
+    other records with :meth:`write_record`, as BagWriter writes schemas and channels outside chunks; offsets are
+    taken from ``tell()``).
     """
 
     def __init__(self, stream: BinaryIO, *, chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = "zstd",
@@ -98,6 +100,8 @@ class McapStreamWriter:
             self._compress = None
         else:
             raise BagError(f"unknown compression {compression!r} (zstd, lz4 or '')")
+        if isinstance(stream, io.RawIOBase):
+            stream = io.BufferedWriter(stream)
         self._out = stream
         self._compression = compression
         self._chunk_size = chunk_size
@@ -124,6 +128,10 @@ class McapStreamWriter:
     # -- records outside chunks
     def _write(self, data: bytes) -> None:
         self._out.write(data)
+
+    def write_record(self, record) -> None:
+        """Write any record (an ``mcap.records`` object) where the file is now, outside chunks."""
+        self._write(_record_bytes(record))
 
     def start(self, profile: str = "", library: str = "") -> None:
         self._open_spill()
@@ -447,9 +455,7 @@ class BagWriter:
     def _write_raw_record(self, record) -> None:
         # Schemas and channels are also written outside chunks: a chunk can then be decoded on its own
         # even if the chunk that first carried them is lost. MCAP allows identical duplicates.
-        b = RecordBuilder()
-        record.write(b)
-        self._file.write(b.end())
+        self._writer.write_record(record)
 
     # -- API
     @property
