@@ -24,12 +24,12 @@ from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema,
                           Statistics)
-from mcap.writer import CompressionType, Writer
 
 from .format import (DEFAULT_CHUNK_SIZE, LIBRARY, MCAP_MAGIC, MESSAGE_ENCODING, PROFILE, RECOVERY_METADATA_NAME,
                      RUN_METADATA_NAME, BagError, NotMcapError)
 from .metadata import RunMetadata
 from .qos import QosInfo, qos_from_yaml
+from .writer import McapStreamWriter
 
 
 @dataclass
@@ -649,7 +649,8 @@ def recover(src: str | os.PathLike, dst: str | os.PathLike, *, overwrite: bool =
             raise BagError(f"nothing recoverable: {rep.describe_loss()}")
         earlier = r.metadata_named(RECOVERY_METADATA_NAME)
         with open(dst, "wb") as f:
-            w = Writer(f, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.ZSTD, enable_crcs=True)
+            # as BagWriter: chunk indexes wait in a temporary file beside dst, not in memory (a long file)
+            w = McapStreamWriter(f, chunk_size=DEFAULT_CHUNK_SIZE, compression="zstd", spill_dir=dst.parent)
             w.start(rep.profile or PROFILE, rep.library or LIBRARY)
 
             def outside(record) -> None:       # as BagWriter: a chunk decodes without the one that had these
