@@ -74,14 +74,14 @@ class McapStreamWriter:
     summary CRC) writes, record for record, for the calls BagWriter and :func:`recover` make (``start``,
     ``register_schema``, ``register_channel``, ``add_message``, ``add_metadata``, ``add_attachment``, ``flush``,
     ``finish``) with the same arguments. The difference: mcap's writer keeps a ``ChunkIndex`` object (with a dict
-    of message-index offsets, one per channel in the chunk) for every chunk until ``finish()``, ~1.5 KB per chunk
+    of message-index offsets, one per channel in the chunk) for every chunk until ``finish()``, ~1.4 KB per chunk
     for a sim_node recording's 17 topics, so with a chunk every 0.1 s the recorder grew by ~50 MB per recorded
     hour (docs/recording.md). Here each chunk index is serialized as soon as its chunk is written and appended to
     an anonymous temporary file (``spill_dir``, default the system's; BagWriter gives the recording's own
     directory: same disk, and not a tmpfs in RAM); ``finish()`` copies it into the summary section in blocks,
     computing the summary CRC as it goes. What stays in memory is bounded by the number of channels, schemas and
     metadata records and by the chunk being filled. The temporary file has no name (it disappears with the
-    process, a crash included) and takes ~60 + 10 x channels bytes per chunk until :meth:`close`.
+    process, a crash included) and takes ~60 + 10 x (channels in the chunk) bytes per chunk until :meth:`close`.
 
     ``stream`` is a binary file object with ``tell()`` (a raw one is buffered, as mcap's writer does: then write
     other records with :meth:`write_record`, as BagWriter writes schemas and channels outside chunks; offsets are
