@@ -33,7 +33,23 @@ from visualization_msgs.msg import MarkerArray
 from flagbot_sim.ros.dds import loopback_only
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-DISCOVERY_TIMEOUT = 20.0
+#: s to wait for a node to start and be discovered (its first message, its services): a first /clock came 36 s
+#: after the start on a cold kernel cache beside ten busy processes. Generous: it costs time only when something is
+#: really broken
+DISCOVERY_TIMEOUT = 120.0
+#: s to wait for something a running node does within a second or two on a quiet machine (the next diagnostic, a
+#: command in force, a few more ticks): a loaded CI machine (2 cores at load 8) can stall a process for seconds.
+#: Generous for the same reason
+EVENT_TIMEOUT = 120.0
+#: queue depth of the test's subscriptions: a starved test process must not drop what it counts or reads in order
+#: (a subscription's KEEP_LAST queue overflows while its callbacks do not run)
+DEPTH = 1000
+
+
+def wall_ns() -> int:
+    """Now on the clock DDS stamps a message's source_timestamp with (the system clock, shared by every process on
+    this machine): take it after an event (a service answer) to select the messages published after it."""
+    return time.time_ns()
 
 
 class ChildProcess:
@@ -80,7 +96,7 @@ class ChildProcess:
             self.proc.wait()
             raise AssertionError(f"process did not finish in {timeout} s:\n{self.output()}") from None
 
-    def stop(self, sig=signal.SIGINT, timeout: float = 20.0):
+    def stop(self, sig=signal.SIGINT, timeout: float = 60.0):
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         return self.wait(timeout)
@@ -105,25 +121,33 @@ def t_of(stamp):
 class Listener:
     """Collects everything sim_node publishes, and asserts nothing non-finite ever arrives.
 
+    ``msgs[key]`` holds the messages in arrival order, ``sent[key]`` beside it each one's source timestamp (wall
+    time in ns at the publish call, taken by the publisher's DDS): after an event, select what was published after
+    it with :meth:`after` (a message published before the event can still be waiting in the queue when the test
+    sees the event's answer), and the unstamped Float64 streams by the /clock published before them with
+    :meth:`since_clock`.
+
     Lives on the module's shared probe node: close() it at the end of the test, or later tests keep receiving
     (and decoding) messages into it."""
 
+    KEYS = ("clock", "pose", "odom", "joints", "omega_h", "omega_t", "speed", "markers", "diag")
+
     def __init__(self, node: Node):
         self.node = node
-        self.msgs = {k: [] for k in ("clock", "pose", "odom", "joints", "omega_h", "omega_t", "speed", "markers",
-                                     "diag")}
+        self.msgs = {k: [] for k in self.KEYS}
+        self.sent = {k: [] for k in self.KEYS}
         self.non_finite = []
         sub = node.create_subscription
         self.subs = [
-            sub(Clock, "/clock", self._cb("clock"), 50),
-            sub(PoseStamped, "head_pose", self._cb("pose"), 50),
-            sub(Odometry, "odom", self._cb("odom"), 50),
-            sub(JointState, "joint_states", self._cb("joints"), 50),
-            sub(Float64, "omega_h", self._cb("omega_h"), 50),
-            sub(Float64, "omega_t", self._cb("omega_t"), 50),
-            sub(Float64, "speed", self._cb("speed"), 50),
-            sub(MarkerArray, "markers", self._cb("markers"), 10),
-            sub(DiagnosticArray, "/diagnostics", self._cb("diag"), 10),
+            sub(Clock, "/clock", self._cb("clock"), DEPTH),
+            sub(PoseStamped, "head_pose", self._cb("pose"), DEPTH),
+            sub(Odometry, "odom", self._cb("odom"), DEPTH),
+            sub(JointState, "joint_states", self._cb("joints"), DEPTH),
+            sub(Float64, "omega_h", self._cb("omega_h"), DEPTH),
+            sub(Float64, "omega_t", self._cb("omega_t"), DEPTH),
+            sub(Float64, "speed", self._cb("speed"), DEPTH),
+            sub(MarkerArray, "markers", self._cb("markers"), DEPTH),
+            sub(DiagnosticArray, "/diagnostics", self._cb("diag"), DEPTH),
         ]
         self.cmd = node.create_publisher(Float64, "cmd_omega", 10)
         # the node's own services (~/pause): /sim_node/pause
@@ -142,8 +166,9 @@ class Listener:
             self.cmd = self.pause = self.reset = None
 
     def _cb(self, key):
-        def cb(m):
+        def cb(m, info):
             self.msgs[key].append(m)
+            self.sent[key].append(info["source_timestamp"])
             for x in _floats(m):
                 if not math.isfinite(x):
                     self.non_finite.append((key, x))
@@ -161,19 +186,45 @@ class Listener:
     def diag_values(self) -> dict:
         return self.diag_values_of(self.msgs["diag"][-1])
 
+    def after(self, key: str, t_wall_ns: int) -> list:
+        """The messages on ``key`` published at or after wall time ``t_wall_ns`` (see :func:`wall_ns`), in order."""
+        return [m for m, s in zip(self.msgs[key], self.sent[key]) if s >= t_wall_ns]
+
+    def clock_published(self, t: float) -> int | None:
+        """Source timestamp of the first /clock received that reads ``t`` or later (None before one came)."""
+        for m, s in zip(self.msgs["clock"], self.sent["clock"]):
+            if t_of(m.clock) >= t:
+                return s
+        return None
+
+    def since_clock(self, key: str, t: float) -> list:
+        """The messages on ``key`` published after the first /clock reading ``t`` or later: a tick publishes its
+        clock first, so these carry the state of simulated time ``t`` or later (for the unstamped streams, e.g.
+        ``speed``; a later message on another topic says nothing about which tick the last one came from)."""
+        s = self.clock_published(t)
+        return [] if s is None else self.after(key, s)
+
     #: the streams sim_node publishes with /clock in every tick, stamped alike
     TICK_STREAMS = ("pose", "odom", "joints")
+    #: the streams it publishes after them in every tick, unstamped
+    UNSTAMPED_STREAMS = ("omega_h", "omega_t", "speed")
 
-    def run_until(self, t: float, timeout: float = 120.0) -> None:
+    def run_until(self, t: float, timeout: float = DISCOVERY_TIMEOUT + EVENT_TIMEOUT) -> None:
         """Spin until /clock reads ``t`` and every per-tick stream received so far has caught up with it too.
         The clock message of a tick is published first: on a loaded machine the listener may take it while the
         same tick's (and earlier ticks') other messages still wait in their queues, so a test that read them
-        after a bare clock wait would find a gap (CI did, at load 8: no joint states in [4.6, 23.4] s)."""
+        after a bare clock wait would find a gap (CI did, at load 8: no joint states in [4.6, 23.4] s). The stamped
+        streams have caught up when their last header stamp reads ``t``, the unstamped ones when their last
+        message was published after the first /clock that read ``t``."""
         def caught_up():
             if self.clock < t:
                 return False
-            return all(t_of(self.msgs[k][-1].header.stamp) >= t for k in self.TICK_STREAMS if self.msgs[k])
-        spin_until(self.node, caught_up, timeout, f"simulation time {t} s on /clock and {', '.join(self.TICK_STREAMS)}")
+            if not all(t_of(self.msgs[k][-1].header.stamp) >= t for k in self.TICK_STREAMS if self.msgs[k]):
+                return False
+            s = self.clock_published(t)
+            return all(self.sent[k][-1] >= s for k in self.UNSTAMPED_STREAMS if self.msgs[k])
+        spin_until(self.node, caught_up, timeout,
+                   f"simulation time {t} s on /clock and {', '.join(self.TICK_STREAMS + self.UNSTAMPED_STREAMS)}")
 
 
 def _floats(m):
@@ -195,7 +246,7 @@ def spin_until(node: Node, predicate, timeout: float, what: str = "condition") -
             raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
 
 
-def call(node: Node, client, request, timeout: float = 10.0):
+def call(node: Node, client, request, timeout: float = EVENT_TIMEOUT):
     spin_until(node, client.service_is_ready, DISCOVERY_TIMEOUT, f"service {client.srv_name}")
     future = client.call_async(request)
     rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
