@@ -39,7 +39,7 @@ import os
 import time
 
 import ros_helpers  # tests/ is on sys.path, as a script and under pytest
-from ros_helpers import DISCOVERY_TIMEOUT, ChildProcess
+from ros_helpers import DISCOVERY_TIMEOUT, EVENT_TIMEOUT, ChildProcess
 
 ROOT = ros_helpers.ROOT        # the test modules import it from here
 
@@ -422,7 +422,7 @@ def _selfrecord(node, args):
     for k in range(args.count):
         pub.publish(Float64(data=float(k)))
         ex.spin_once(timeout_sec=0.01)
-    end = time.monotonic() + 10.0
+    end = time.monotonic() + EVENT_TIMEOUT
     while rec.writer.message_count < args.count and time.monotonic() < end and rclpy.ok():
         ex.spin_once(timeout_sec=0.05)
     print(rec.close().format(), flush=True)

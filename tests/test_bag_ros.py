@@ -12,8 +12,8 @@ from pathlib import Path
 import crash_loss
 import numpy as np
 import pytest
-from bag_testlib import (DISCOVERY_TIMEOUT, TOPIC_TYPES, ChildProcess, bag_messages, full_topic, make_message,
-                         record, stamp_ns, start_helper, to_plain, wait_for)
+from bag_testlib import (DISCOVERY_TIMEOUT, EVENT_TIMEOUT, TOPIC_TYPES, ChildProcess, bag_messages, full_topic,
+                         make_message, record, stamp_ns, start_helper, to_plain, wait_for)
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.serialization import serialize_message
@@ -68,9 +68,10 @@ def record_published(tmp, sig, rounds=ROUNDS):
     rec = record(out, "--namespace", "/t", "--scene", "design1", "--metadata", "test=bag_ros")
     pub = start_helper("publish", "--ns", "/t", "--rounds", str(rounds), "--rate", "20", "--log", log)
     try:
-        code, output = pub.wait(timeout=DISCOVERY_TIMEOUT + 30)
+        code, output = pub.wait(timeout=DISCOVERY_TIMEOUT + EVENT_TIMEOUT)
         assert code == 0, output
-        wait_for(lambda: bag_messages(out, TOPICS) >= rounds * len(TOPICS), 10.0, "all messages in the file", rec)
+        wait_for(lambda: bag_messages(out, TOPICS) >= rounds * len(TOPICS), EVENT_TIMEOUT, "all messages in the file",
+                 rec)
         seen_ns = time.time_ns()
         code, output = rec.stop(sig)
     finally:
@@ -153,10 +154,11 @@ def test_round_trip_record_replay_record(published, tmp_path):
     rec = record(second, *TOPICS)
     rep = ChildProcess("-m", "flagbot_sim.commands.replay", first, "--wait-for-subscribers", str(DISCOVERY_TIMEOUT))
     try:
-        code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + 30)
+        code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + EVENT_TIMEOUT)
         assert code == 0, output
         assert f"replayed {ROUNDS * len(TOPICS)} messages" in output and "0 derived /clock" in output
-        wait_for(lambda: bag_messages(second, TOPICS) >= ROUNDS * len(TOPICS), 10.0, "the replayed messages", rec)
+        wait_for(lambda: bag_messages(second, TOPICS) >= ROUNDS * len(TOPICS), EVENT_TIMEOUT, "the replayed messages",
+                 rec)
         code, output = rec.stop()
         assert code == 0, output
     finally:
@@ -220,14 +222,16 @@ def test_replay_publishes_clock_from_log_time_with_rate_offset_and_filter(tmp_pa
             w.write("/t/speed", serialize_message(Float64(data=float(k))), T0 + k * 100_000_000)
             w.write("/t/omega_h", serialize_message(Float64(data=-1.0)), T0 + k * 100_000_000)
     watch_out = str(tmp_path / "clock.json")
-    watch = start_helper("clockwatch", "--topic", "/t/speed", "--count", "25", "--out", watch_out)
+    # (the watcher gives up --timeout s after it is ready: long enough for the replay to start and be discovered)
+    watch = start_helper("clockwatch", "--topic", "/t/speed", "--count", "25", "--out", watch_out,
+                         "--timeout", str(2 * DISCOVERY_TIMEOUT + EVENT_TIMEOUT))
     try:
         wait_for(lambda: "clockwatch ready" in watch.output(), DISCOVERY_TIMEOUT, "the use_sim_time node", watch)
         rep = ChildProcess("-m", "flagbot_sim.commands.replay", str(path), "--rate", "2", "--start-offset", "0.5",
                    "--exclude", "/t/omega_h", "--wait-for-subscribers", str(DISCOVERY_TIMEOUT))
-        code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + 30)
+        code, output = rep.wait(timeout=DISCOVERY_TIMEOUT + EVENT_TIMEOUT)
         assert code == 0, output
-        code, wout = watch.wait(timeout=20)
+        code, wout = watch.wait(timeout=EVENT_TIMEOUT)
         assert code == 0, wout
     finally:
         watch.kill()
@@ -269,7 +273,7 @@ def test_replay_of_a_truncated_file_replays_what_is_readable_and_says_what_was_l
     readable = scan(cut).messages
     assert 0 < readable < 50
     rep = ChildProcess("-m", "flagbot_sim.commands.replay", str(cut), "--rate", "10", "--no-clock")
-    code, output = rep.wait(timeout=30)
+    code, output = rep.wait(timeout=DISCOVERY_TIMEOUT)
     assert code == 0, output
     assert "not closed properly" in output and "LOST:" in output and f"recovered {readable} messages" in output
     assert f"replayed {readable} messages" in output

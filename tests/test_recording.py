@@ -13,7 +13,7 @@ from flagbot_sim.runs.summary import summarize
 from flagbot_sim.runs.resim import resimulate
 from flagbot_sim.scene import load_scene
 
-from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, call, set_params, spin_until
+from ros_helpers import DISCOVERY_TIMEOUT, EVENT_TIMEOUT, NodeProcess, call, set_params, spin_until
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 #: the sample recordings bags/README.md describes (a table row each): every one of them must be committed
@@ -58,9 +58,9 @@ def run_recording_node(ros, tmp_path, record_at_launch=True, overrides=()):
     # two subscriptions: sim_node's command input and its recorder (which subscribes once it sees a publisher)
     spin_until(ros, lambda: cmd.get_subscription_count() >= 2, DISCOVERY_TIMEOUT, "cmd_omega input and recorder")
     call(ros, ros.create_client(SetBool, "/sim_node/pause"), SetBool.Request(data=False))   # ~/pause
-    spin_until(ros, lambda: clock and clock[-1] > 1.0, 60, "1 s of simulation")
+    spin_until(ros, lambda: clock and clock[-1] > 1.0, EVENT_TIMEOUT, "1 s of simulation")
     cmd.publish(Float64(data=9.0))                        # a command change during the recording
-    spin_until(ros, lambda: clock[-1] > 2.5, 60, "2.5 s of simulation")
+    spin_until(ros, lambda: clock[-1] > 2.5, EVENT_TIMEOUT, "2.5 s of simulation")
     return proc, out
 
 

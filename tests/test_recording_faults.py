@@ -91,7 +91,7 @@ def test_standalone_record_on_a_full_disk_logs_one_error_and_exits_non_zero(tmp_
     written = int(output.split(f"{out}: ", 1)[1].split(" messages")[0])
     fixed = tmp_path / "fixed.mcap"
     r = ChildProcess("-m", "flagbot_sim", "bag-recover", out, "-o", str(fixed))
-    code, text = r.wait(timeout=60)
+    code, text = r.wait(timeout=DISCOVERY_TIMEOUT)
     assert code == 0, text
     with BagReader(fixed) as rd:
         got = [int(rd.decode(m).data) for m in rd.messages()]

@@ -19,7 +19,7 @@ from flagbot_sim.bag.lost import LOST_METADATA_NAME
 from flagbot_sim.runs.summary import format_summary, summarize
 from flagbot_sim.ros.recorder import Recorder
 
-from ros_helpers import DISCOVERY_TIMEOUT
+from ros_helpers import DISCOVERY_TIMEOUT, EVENT_TIMEOUT
 
 TOPIC = "/lost_test/x"
 
@@ -58,7 +58,7 @@ def test_a_slow_writer_behind_a_small_queue_loses_messages_and_reports_exactly_h
         wait(lambda: pub.get_subscription_count() == 1, DISCOVERY_TIMEOUT, "the recorder's subscription")
         # the first message is taken before the burst: counting starts at the first number taken
         pub.publish(Float64(data=0.0))
-        wait(lambda: rec.writer.message_count == 1, 30, "the first message recorded")
+        wait(lambda: rec.writer.message_count == 1, EVENT_TIMEOUT, "the first message recorded")
         slow.set()
         burst = 3000
         for k in range(1, burst + 1):      # far faster than 2 ms per message: the depth-5 queue overflows
@@ -71,7 +71,7 @@ def test_a_slow_writer_behind_a_small_queue_loses_messages_and_reports_exactly_h
         slow.clear()
         pub.publish(Float64(data=float(burst + 1)))
         published = burst + 2
-        wait(lambda: last[0] == burst + 1, 30, "the last message recorded")
+        wait(lambda: last[0] == burst + 1, EVENT_TIMEOUT, "the last message recorded")
     finally:
         stop.set()
         spinner.join(5)
@@ -106,7 +106,7 @@ def test_a_recording_without_losses_says_none_were_lost(ros, tmp_path):
             assert time.monotonic() < end
         for k in range(50):
             pub.publish(Float64(data=float(k)))
-        end = time.monotonic() + 30
+        end = time.monotonic() + EVENT_TIMEOUT
         while rec.writer.message_count < 50:
             rclpy.spin_once(rec_node, timeout_sec=0.05)
             assert time.monotonic() < end

@@ -8,7 +8,7 @@ from std_msgs.msg import Float64
 from flagbot_sim.beam import BeamParams, solve_balance
 from flagbot_sim.scene import load_scene
 
-from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, set_params, spin_until
+from ros_helpers import DISCOVERY_TIMEOUT, EVENT_TIMEOUT, NodeProcess, set_params, spin_until
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -40,7 +40,7 @@ def test_prediction_equals_the_beam_library(ros, beam_node):
     def matches():
         return all(got[k] and got[k][-1] == pytest.approx(v, rel=1e-12)
                    for k, v in (("speed", expected.v_h), ("omega_h", expected.omega_h), ("omega_t", expected.omega_t)))
-    spin_until(ros, matches, 30, "the beam prediction for 12 rad/s")
+    spin_until(ros, matches, EVENT_TIMEOUT, "the beam prediction for 12 rad/s")
     # the split adds up and the robot moves head first
     assert got["omega_h"][-1] + got["omega_t"][-1] == pytest.approx(12.0, rel=1e-9) and got["speed"][-1] > 0
 
@@ -51,12 +51,14 @@ def test_late_subscribers_get_the_current_prediction_and_bad_commands_change_not
     cmd.publish(Float64(data=6.0))
     first = listen(ros)
     spin_until(ros, lambda: first["omega_h"] and first["omega_t"]
-               and first["omega_h"][-1] + first["omega_t"][-1] == pytest.approx(6.0), 30, "prediction for 6 rad/s")
+               and first["omega_h"][-1] + first["omega_t"][-1] == pytest.approx(6.0), EVENT_TIMEOUT,
+               "prediction for 6 rad/s")
     for bad in (math.nan, math.inf, 1e9):
         cmd.publish(Float64(data=bad))
     late = listen(ros)              # a new subscription: the latched value arrives without a new command
     # the three topics are separate channels: wait for each, in whatever order they arrive
-    spin_until(ros, lambda: all(late[k] for k in ("speed", "omega_h", "omega_t")), 10, "latched prediction")
+    spin_until(ros, lambda: all(late[k] for k in ("speed", "omega_h", "omega_t")), EVENT_TIMEOUT,
+               "latched prediction")
     assert late["omega_h"][-1] + late["omega_t"][-1] == pytest.approx(6.0)
     assert all(math.isfinite(x) for k in late for x in late[k])
     assert beam_node.alive()

@@ -15,7 +15,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from std_msgs.msg import Float64
 
 from flagbot_sim.bag import BagReader
-from ros_helpers import DISCOVERY_TIMEOUT, Listener, NodeProcess, spin_until, t_of
+from ros_helpers import DISCOVERY_TIMEOUT, EVENT_TIMEOUT, Listener, NodeProcess, spin_until, t_of
 
 SCENE = ["design2", '["flagellum.length=0.05"]']        # short flagella: cheap steps
 
@@ -55,7 +55,8 @@ def test_a_flood_of_commands_takes_effect_and_the_latest_wins(ros, device):
     sent[-1] = 12.5
     for w in sent:
         lis.cmd.publish(Float64(data=w))
-    spin_until(ros, lambda: lis.msgs["joints"] and command_in_force(lis) == 12.5, 20, "the last command in force")
+    spin_until(ros, lambda: lis.msgs["joints"] and command_in_force(lis) == 12.5, EVENT_TIMEOUT,
+               "the last command in force")
     t_last = lis.clock
     lis.run_until(t_last + 1.0)
     in_force = [m.velocity[2] for m in lis.msgs["joints"]]
@@ -68,7 +69,7 @@ def test_a_flood_of_commands_takes_effect_and_the_latest_wins(ros, device):
     assert all(w == 12.5 for w in in_force[in_force.index(12.5, len(in_force) - 20):])
     assert proc.alive() and not lis.non_finite
     # the motor obeys it: head and flagella share 12.5 rad/s once settled
-    spin_until(ros, lambda: lis.msgs["diag"] and float(lis.diag_values()["omega_T_rad_s"]) == 12.5, 10,
+    spin_until(ros, lambda: lis.msgs["diag"] and float(lis.diag_values()["omega_T_rad_s"]) == 12.5, EVENT_TIMEOUT,
                "diagnostics with the last command")
     assert int(lis.diag_values()["rejected_commands"]) == 0
 
@@ -77,8 +78,9 @@ def test_a_bad_command_inside_a_burst_is_rejected_and_the_next_good_one_wins(ros
     proc, lis = device("real_time_factor:=2.0", "initial_omega:=4.0")
     for w in (5.0, math.nan, 6.0, math.inf, 3.0):
         lis.cmd.publish(Float64(data=w))
-    spin_until(ros, lambda: lis.msgs["joints"] and command_in_force(lis) == 3.0, 20, "the last good command")
-    spin_until(ros, lambda: lis.msgs["diag"] and int(lis.diag_values()["rejected_commands"]) == 2, 10,
+    spin_until(ros, lambda: lis.msgs["joints"] and command_in_force(lis) == 3.0, EVENT_TIMEOUT,
+               "the last good command")
+    spin_until(ros, lambda: lis.msgs["diag"] and int(lis.diag_values()["rejected_commands"]) == 2, EVENT_TIMEOUT,
                "both rejections counted (a burst shorter than the queue is seen whole)")
     assert not lis.non_finite and math.nan not in [m.velocity[2] for m in lis.msgs["joints"]]
 
@@ -86,7 +88,7 @@ def test_a_bad_command_inside_a_burst_is_rejected_and_the_next_good_one_wins(ros
 def test_diagnostics_warn_with_the_numbers_when_simulated_time_falls_behind(ros, device):
     proc, lis = device("real_time_factor:=1000.0", "initial_omega:=4.0")
     spin_until(ros, lambda: lis.msgs["diag"] and lis.diag_values()["_level"] == DiagnosticStatus.WARN
-               and "achieved" in lis.diag_values()["_message"], 15, "a WARN with the achieved rate")
+               and "achieved" in lis.diag_values()["_message"], EVENT_TIMEOUT, "a WARN with the achieved rate")
     d = lis.diag_values()
     achieved = float(d["real_time_factor_achieved"])
     assert 0 < achieved < 900 and float(d["behind_schedule_s"]) > 0
@@ -98,7 +100,7 @@ def test_diagnostics_report_step_failures_as_an_error_with_the_numbers(ros, devi
     # min_dt just under dt: the first step from rest at 250 rpm cannot be cut enough, so every step fails
     proc, lis = device('scene:=design1', 'scene_overrides:=["numerics.min_dt=0.009", "numerics.max_iterations=4"]',
                        "initial_omega:=26.18", "real_time_factor:=1.0")
-    spin_until(ros, lambda: lis.msgs["diag"] and lis.diag_values()["_level"] == DiagnosticStatus.ERROR, 15,
+    spin_until(ros, lambda: lis.msgs["diag"] and lis.diag_values()["_level"] == DiagnosticStatus.ERROR, EVENT_TIMEOUT,
                "an ERROR for the failing steps")
     d = lis.diag_values()
     failures = int(d["step_failures"])
@@ -130,7 +132,7 @@ def test_shutdown_is_quick_and_leaves_the_recording_complete(ros, tmp_path, sig)
         spin_until(ros, lambda: lis.cmd.get_subscription_count() >= 2, DISCOVERY_TIMEOUT,
                    "sim_node's and its recorder's cmd_omega")
         lis.cmd.publish(Float64(data=7.0))
-        spin_until(ros, lambda: lis.msgs["joints"] and lis.msgs["joints"][-1].velocity[2] == 7.0, 20,
+        spin_until(ros, lambda: lis.msgs["joints"] and lis.msgs["joints"][-1].velocity[2] == 7.0, EVENT_TIMEOUT,
                    "the command in force")
         lis.run_until(lis.clock + 1.0)
         last_seen = lis.clock

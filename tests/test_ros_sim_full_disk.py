@@ -10,7 +10,7 @@ import resource
 
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from ros_helpers import DISCOVERY_TIMEOUT, ChildProcess, Listener, set_params, spin_until
+from ros_helpers import DISCOVERY_TIMEOUT, EVENT_TIMEOUT, ChildProcess, Listener, set_params, spin_until
 
 LIMIT = 96 * 1024       # bytes: above the header, metadata and schemas, reached within a few seconds of recording
 
@@ -30,27 +30,28 @@ def test_full_disk_during_recording(ros, tmp_path):
         def failed(m):
             v = lis.diag_values_of(m)
             return v["_level"] == DiagnosticStatus.ERROR and "recording" in v["_message"]
-        spin_until(ros, lambda: lis.msgs["diag"] and failed(lis.msgs["diag"][-1]), 30, "a recording ERROR")
+        spin_until(ros, lambda: lis.msgs["diag"] and failed(lis.msgs["diag"][-1]), EVENT_TIMEOUT,
+                   "a recording ERROR")
         first = len(lis.msgs["diag"]) - 1
         assert full.stat().st_size <= LIMIT
         values = lis.diag_values()
         assert values["recording"] == str(full) and values["recording_error"]
         assert str(full) in values["_message"]
         # it stays: three more diagnostics (one per wall second), all ERROR, while the node keeps running
-        spin_until(ros, lambda: len(lis.msgs["diag"]) >= first + 4, 10, "more diagnostics")
+        spin_until(ros, lambda: len(lis.msgs["diag"]) >= first + 4, EVENT_TIMEOUT, "more diagnostics")
         assert all(failed(m) for m in lis.msgs["diag"][first:])
         # a new recording the disk cannot take is refused, and the current one stays current
         resource.prlimit(proc.pid, resource.RLIMIT_FSIZE, (1, 1))
         (res,) = set_params(ros, "sim_node", record=str(tmp_path / "second.mcap"))
         assert not res.successful and "second.mcap" in res.reason, res.reason
         n = len(lis.msgs["diag"])
-        spin_until(ros, lambda: len(lis.msgs["diag"]) > n, 30, "diagnostics")
+        spin_until(ros, lambda: len(lis.msgs["diag"]) > n, EVENT_TIMEOUT, "diagnostics")
         assert failed(lis.msgs["diag"][-1]) and lis.diag_values()["recording"] == str(full)
         # stopping the recording clears the ERROR
         (res,) = set_params(ros, "sim_node", record="")
         assert res.successful, res.reason
         # (a diagnostic issued before the change can still be on its way: wait for the first one that is OK)
-        spin_until(ros, lambda: lis.msgs["diag"] and lis.diag_values()["_level"] == DiagnosticStatus.OK, 30,
+        spin_until(ros, lambda: lis.msgs["diag"] and lis.diag_values()["_level"] == DiagnosticStatus.OK, EVENT_TIMEOUT,
                    "diagnostics back to OK")
         assert lis.diag_values()["recording"] == ""
         assert proc.alive()

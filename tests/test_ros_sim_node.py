@@ -17,7 +17,8 @@ from flagbot_sim.bag import BagReader
 from flagbot_sim.physics import Simulation
 from flagbot_sim.scene import load_scene
 
-from ros_helpers import DISCOVERY_TIMEOUT, Listener, NodeProcess, call, get_params, set_params, spin_until, t_of
+from ros_helpers import (DISCOVERY_TIMEOUT, EVENT_TIMEOUT, Listener, NodeProcess, call, get_params, set_params,
+                         spin_until, t_of, wall_ns)
 
 SCENE = ["design2", ["flagellum.length=0.05"]]     # short flagella: steady within a couple of seconds
 OMEGA = 10.0
@@ -58,7 +59,7 @@ def test_commanded_robot_publishes_everything_and_matches_the_library(ros, sim_n
     lis.run_until(3.0)
     # diagnostics come once per wall second and 3 simulated seconds take 0.6 s of wall time at this
     # real-time factor: wait for the next one rather than assume one fell inside the run
-    spin_until(ros, lambda: lis.msgs["diag"], 30.0, "/diagnostics")
+    spin_until(ros, lambda: lis.msgs["diag"], EVENT_TIMEOUT, "/diagnostics")
     for key in ("clock", "pose", "odom", "joints", "omega_h", "omega_t", "speed", "markers", "diag"):
         assert lis.msgs[key], f"nothing received on {key}"
     assert not lis.non_finite
@@ -89,7 +90,7 @@ def test_commanded_robot_publishes_everything_and_matches_the_library(ros, sim_n
     assert sorted(m.ns for m in ma.markers) == ["flagella", "flagella", "head", "plate"]
     assert all(len(m.points) == 13 for m in ma.markers if m.ns == "flagella")   # 12 edges of 4.17 mm
     # diagnostics come at 1 Hz of wall time: wait for one issued after the command took effect
-    spin_until(ros, lambda: lis.msgs["diag"] and float(lis.diag_values()["omega_T_rad_s"]) == OMEGA, 10,
+    spin_until(ros, lambda: lis.msgs["diag"] and float(lis.diag_values()["omega_T_rad_s"]) == OMEGA, EVENT_TIMEOUT,
                "diagnostics reporting the command")
     assert lis.diag_values()["_level"] == DiagnosticStatus.OK
 
@@ -104,14 +105,14 @@ def test_bad_commands_are_rejected_and_the_next_good_one_is_obeyed(ros, sim_node
     t_bad = lis.clock
     lis.run_until(t_bad + 1.0)
     assert proc.alive()
-    spin_until(ros, lambda: lis.msgs["diag"] and int(lis.diag_values()["rejected_commands"]) >= 5, 10,
+    spin_until(ros, lambda: lis.msgs["diag"] and int(lis.diag_values()["rejected_commands"]) >= 5, EVENT_TIMEOUT,
                "rejections in diagnostics")
     assert float(lis.diag_values()["omega_T_rad_s"]) == pytest.approx(4.0)     # the last good command stayed
     lis.cmd.publish(Float64(data=7.0))
     t_good = lis.clock
     # the motor joint reports the command in force; once it is 7, head and flagella settle to share it
-    # (within 10 s of wall time; how much simulated time that is depends on the machine's load: not asserted)
-    spin_until(ros, lambda: lis.msgs["joints"][-1].velocity[2] == 7.0, 10, "the new command in force")
+    # (how much simulated time that takes depends on the machine's load: not asserted)
+    spin_until(ros, lambda: lis.msgs["joints"][-1].velocity[2] == 7.0, EVENT_TIMEOUT, "the new command in force")
     motor = [(t_of(m.header.stamp), m.velocity[2]) for m in lis.msgs["joints"]]
     k = next(i for i, (_, w) in enumerate(motor) if w == 7.0)
     t_obeyed = motor[k][0]
@@ -143,9 +144,10 @@ def test_invalid_parameters_are_refused_with_a_reason(ros, sim_node):
     # a valid change is applied: three flagella now
     (res,) = set_params(ros, "sim_node", n_flagella=3)
     assert res.successful
-    n0 = len(lis.msgs["markers"])
-    spin_until(ros, lambda: len(lis.msgs["markers"]) > n0 + 2, 20, "markers after the rebuild")
-    assert [m.ns for m in lis.msgs["markers"][-1].markers].count("flagella") == 3
+    # the markers published after the answer (ones published before it can still be queued here)
+    t_rebuilt = wall_ns()
+    spin_until(ros, lambda: len(lis.after("markers", t_rebuilt)) > 2, EVENT_TIMEOUT, "markers after the rebuild")
+    assert [m.ns for m in lis.after("markers", t_rebuilt)[-1].markers].count("flagella") == 3
 
 
 def flagella_drawn(arrays) -> set:
@@ -169,14 +171,14 @@ def test_removed_flagella_are_deleted_from_the_markers(ros, sim_node):
     for n, ids in ((3, {0, 1, 2}), (2, {0, 1})):
         (res,) = set_params(ros, "sim_node", n_flagella=n)
         assert res.successful, res.reason
-        spin_until(ros, lambda: flagella_drawn(lis.msgs["markers"]) == ids, 20, f"{n} flagella on screen")
+        spin_until(ros, lambda: flagella_drawn(lis.msgs["markers"]) == ids, EVENT_TIMEOUT, f"{n} flagella on screen")
     # the shrink was announced: a DELETEALL (or a DELETE of flagellum 2) arrived after the three were drawn
     actions = [(m.action, m.ns, m.id) for arr in lis.msgs["markers"] for m in arr.markers]
     third = max(i for i, a in enumerate(actions) if a == (Marker.ADD, "flagella", 2))
     assert any(a[0] == Marker.DELETEALL or a == (Marker.DELETE, "flagella", 2) for a in actions[third:])
     # while the set stays the same, nothing is deleted (no flicker)
     n_now = len(lis.msgs["markers"])
-    spin_until(ros, lambda: len(lis.msgs["markers"]) > n_now + 5, 10, "more markers")
+    spin_until(ros, lambda: len(lis.msgs["markers"]) > n_now + 5, EVENT_TIMEOUT, "more markers")
     assert all(m.action == Marker.ADD for arr in lis.msgs["markers"][n_now + 1:] for m in arr.markers)
 
 
@@ -209,20 +211,23 @@ def test_reset_returns_the_robot_to_the_start_and_pause_stops_time(ros, sim_node
     lis.run_until(2.0)
     assert lis.msgs["pose"][-1].pose.position.x > 1e-5
     call(ros, lis.pause, SetBool.Request(data=True))
-    # paused: the clock stands still while the node keeps publishing
-    n1 = len(lis.msgs["clock"])
-    spin_until(ros, lambda: len(lis.msgs["clock"]) > n1 + 10, 10, "clock ticks while paused")
-    ticks = [t_of(m.clock) for m in lis.msgs["clock"][n1:]]
+    # paused: the clock stands still while the node keeps publishing. Each check reads what was published after
+    # the service's answer: what was published before it (running, or not yet reset) can still be queued here
+    t_paused = wall_ns()
+    spin_until(ros, lambda: len(lis.after("clock", t_paused)) > 10, EVENT_TIMEOUT, "clock ticks while paused")
+    ticks = [t_of(m.clock) for m in lis.after("clock", t_paused)]
     assert max(ticks) == min(ticks) >= 2.0
     res = call(ros, lis.reset, Trigger.Request())
     assert res.success
-    n0 = len(lis.msgs["pose"])
-    spin_until(ros, lambda: len(lis.msgs["pose"]) > n0 + 2, 10, "poses after reset")
-    p = lis.msgs["pose"][-1].pose
+    t_reset = wall_ns()
+    spin_until(ros, lambda: len(lis.after("pose", t_reset)) > 2 and lis.after("joints", t_reset), EVENT_TIMEOUT,
+               "poses and joint states after reset")
+    pose = lis.after("pose", t_reset)[-1]
+    p = pose.pose
     assert abs(p.position.x) < 1e-12 and abs(p.position.y) < 1e-12 and abs(p.orientation.w) > 1 - 1e-12
-    j = lis.msgs["joints"][-1]
+    j = lis.after("joints", t_reset)[-1]
     assert list(j.position) == [0.0, 0.0, 0.0]
-    assert t_of(lis.msgs["pose"][-1].header.stamp) >= max(ticks)     # the clock never runs backwards
+    assert t_of(pose.header.stamp) >= max(ticks)     # the clock never runs backwards
     call(ros, lis.pause, SetBool.Request(data=False))
     lis.run_until(max(ticks) + 0.5)                                   # and runs again after resuming
 

@@ -22,8 +22,8 @@ from rclpy.parameter import parameter_value_to_python
 from flagbot_sim.bag import BagReader
 from flagbot_sim.bag.lost import LOST_METADATA_NAME, counts_from_record
 
-from ros_helpers import (DISCOVERY_TIMEOUT, ChildProcess, Listener, NodeProcess, call, set_params,
-                         spin_until, t_of)
+from ros_helpers import (DISCOVERY_TIMEOUT, EVENT_TIMEOUT, ChildProcess, Listener, NodeProcess, call, set_params,
+                         spin_until, t_of, wall_ns)
 
 SCENE = ["design2", ["flagellum.length=0.05"]]
 OMEGA = 5.0
@@ -89,7 +89,7 @@ def test_bad_start_values_exit_non_zero_with_one_line(files):
              "scene:=": "parse"}
     procs = {arg: ChildProcess("-m", "flagbot_sim.ros.sim_node", "--ros-args", "-p", arg) for arg in cases}
     for arg, word in cases.items():
-        code, out = procs[arg].wait(60)
+        code, out = procs[arg].wait(DISCOVERY_TIMEOUT)
         assert code == 2, (arg, code, out)
         assert "Traceback" not in out, (arg, out)
         errors = [line for line in out.splitlines() if line.startswith("error:")]
@@ -103,7 +103,7 @@ def test_use_sim_time_at_start_up_keeps_the_clock_running(ros):
     try:
         spin_until(ros, lambda: lis.clock > 1.5, DISCOVERY_TIMEOUT + 10, "/clock advancing with use_sim_time")
         # diagnostics follow the simulated time too (they come once per wall second)
-        spin_until(ros, lambda: lis.msgs["diag"] and float(lis.diag_values()["sim_time_s"]) > 1.0, 5.0,
+        spin_until(ros, lambda: lis.msgs["diag"] and float(lis.diag_values()["sim_time_s"]) > 1.0, EVENT_TIMEOUT,
                    "diagnostics of a running simulation")
     finally:
         lis.close()
@@ -143,8 +143,8 @@ class Params:
     def send(self, params: list[ParameterMsg], atomic: bool):
         """One call of SetParameters (one result per parameter) or SetParametersAtomically (one result)."""
         if atomic:
-            return [call(self.ros, self.atomic, SetParametersAtomically.Request(parameters=params), 15.0).result]
-        return list(call(self.ros, self.set, SetParameters.Request(parameters=params), 15.0).results)
+            return [call(self.ros, self.atomic, SetParametersAtomically.Request(parameters=params)).result]
+        return list(call(self.ros, self.set, SetParameters.Request(parameters=params)).results)
 
     def read(self, names: list[str]) -> dict:
         res = call(self.ros, self.get, GetParameters.Request(names=names))
@@ -243,16 +243,17 @@ def test_every_bad_value_is_answered_refused_and_changes_nothing(ros, device, fi
     cases = bad_cases(files)
     slowest = (0.0, "")
     for label, parts, atomic in cases:
-        n_clock = len(lis.msgs["clock"])
         t0 = time.monotonic()
         results = params.send(params_msg(parts), atomic)
+        t_answer = wall_ns()
         slowest = max(slowest, (time.monotonic() - t0, label))
         assert len(results) == (1 if atomic else len(parts)), label
         for res in results:
             assert not res.successful, f"{label}: accepted"
             assert res.reason and len(res.reason) <= 1000, (label, res.reason[:2000])
         assert proc.alive(), f"{label}: sim_node died:\n{proc.output()[-3000:]}"
-        spin_until(ros, lambda: len(lis.msgs["clock"]) > n_clock, 30.0, f"/clock after {label}")
+        # a /clock published after the answer (one received after it can be older, still queued here)
+        spin_until(ros, lambda: lis.sent["clock"][-1] >= t_answer, EVENT_TIMEOUT, f"/clock after {label}")
         assert params.read(NAMES) == before, label
     print(f"{len(cases)} bad parameter sets refused; slowest answer {slowest[0]:.3f} s ({slowest[1]})")
     assert len(cases) >= 150
@@ -264,7 +265,7 @@ def test_every_bad_value_is_answered_refused_and_changes_nothing(ros, device, fi
     ticks = [t_of(m.clock) for m in lis.msgs["clock"]]
     assert all(b >= a for a, b in zip(ticks, ticks[1:]))
     n0 = len(lis.msgs["diag"])
-    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, 30.0, "fresh diagnostics")
+    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, EVENT_TIMEOUT, "fresh diagnostics")
     diag = lis.diag_values()
     assert (diag["n_flagella"], diag["scene"]) == ("2", "design2")
     assert diag["recording"] == record and diag["recording_error"] == ""
@@ -273,14 +274,17 @@ def test_every_bad_value_is_answered_refused_and_changes_nothing(ros, device, fi
     assert not lis.non_finite
 
 
-def clock_rate(ros, lis, seconds=1.0, settle=0.3) -> float:
-    """/clock messages per second over ``seconds``, after ``settle`` s of spinning: what queued while the test
-    waited on a service call (at the old rate) is taken in first, not counted as the new rate."""
-    t_settle = time.monotonic()
-    spin_until(ros, lambda: time.monotonic() - t_settle >= settle, settle + 5, "time")
-    n0, t0 = len(lis.msgs["clock"]), time.monotonic()
-    spin_until(ros, lambda: time.monotonic() - t0 >= seconds, seconds + 5, "time")
-    return (len(lis.msgs["clock"]) - n0) / (time.monotonic() - t0)
+def clock_rate(ros, lis, seconds=1.0) -> float:
+    """/clock messages sim_node published per second over the next ``seconds`` of wall time, counted by their
+    source timestamps (when they were published), not by when this process took them: what queued while the test
+    waited on a service call (at the old rate), or while this process was starved, is not counted as the rate of
+    the window it was taken in."""
+    t0 = wall_ns()
+    spin_until(ros, lambda: wall_ns() - t0 >= seconds * 1e9, seconds + EVENT_TIMEOUT, "time")
+    t1 = wall_ns()
+    # everything published in the window has arrived once one published after it has (one writer: in order)
+    spin_until(ros, lambda: lis.sent["clock"] and lis.sent["clock"][-1] >= t1, EVENT_TIMEOUT, "/clock after the window")
+    return sum(t0 <= s < t1 for s in lis.sent["clock"]) / ((t1 - t0) * 1e-9)
 
 
 def test_refused_rate_change_keeps_the_clock_rate_and_refused_record_keeps_recording(ros, device):
@@ -295,7 +299,7 @@ def test_refused_rate_change_keeps_the_clock_rate_and_refused_record_keeps_recor
     (res,) = set_params(ros, "sim_node", record="/proc/x.mcap")
     assert not res.successful and "/proc/x.mcap" in res.reason
     n0 = len(lis.msgs["diag"])
-    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, 30.0, "fresh diagnostics")
+    spin_until(ros, lambda: len(lis.msgs["diag"]) > n0, EVENT_TIMEOUT, "fresh diagnostics")
     assert lis.diag_values()["recording"] == record
     # a valid rate change still works
     (res,) = set_params(ros, "sim_node", publish_rate=10.0)
@@ -311,9 +315,14 @@ def test_use_sim_time_at_run_time_keeps_the_clock_running_and_is_said_once(ros, 
     for v in (True, False, True):
         (res,) = set_params(ros, "sim_node", use_sim_time=v)
         assert res.successful, res.reason
-        t_sim = lis.clock
-        # real_time_factor 2: a wall second later the simulated clock is well ahead
-        spin_until(ros, lambda: lis.clock > t_sim + 1.0, 10, f"/clock advancing with use_sim_time={v}")
+        # real_time_factor 2: a wall second later the simulated clock is well ahead (on the /clock published
+        # after the answer: an older one can still be queued here)
+        t_set = wall_ns()
+
+        def advanced():
+            ticks = [t_of(m.clock) for m in lis.after("clock", t_set)]
+            return ticks and ticks[-1] > ticks[0] + 1.0
+        spin_until(ros, advanced, EVENT_TIMEOUT, f"/clock advancing with use_sim_time={v}")
     assert proc.output().count("use_sim_time is true") == 1
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from rosgraph_msgs.msg import Clock
 
-from ros_helpers import DISCOVERY_TIMEOUT, NodeProcess, set_params, spin_until
+from ros_helpers import DISCOVERY_TIMEOUT, EVENT_TIMEOUT, NodeProcess, set_params, spin_until
 
 pytest.importorskip("foxglove")
 websockets = pytest.importorskip("websockets")
@@ -32,9 +32,10 @@ def test_sim_node_serves_the_robot_to_a_foxglove_client(ros):
 
         async def watch():
             # the protocol's first name (Lichtblick, @foxglove/ws-protocol) is served like the SDK's
-            c = await Client.connect(f"ws://127.0.0.1:{port}", timeout=20, subprotocol="foxglove.websocket.v1")
+            c = await Client.connect(f"ws://127.0.0.1:{port}", timeout=EVENT_TIMEOUT,
+                                   subprotocol="foxglove.websocket.v1")
             await c.subscribe({"/flagbot/state", "/flagbot/scene"})
-            got = await c.collect({"/flagbot/state", "/flagbot/scene"}, timeout=20)
+            got = await c.collect({"/flagbot/state", "/flagbot/scene"}, timeout=EVENT_TIMEOUT)
             await c.close()
             # a client offering neither is refused (HTTP 400), and the node's log says what it offered
             with pytest.raises(websockets.InvalidStatus, match="400"):
