@@ -210,19 +210,20 @@ class Listener:
     UNSTAMPED_STREAMS = ("omega_h", "omega_t", "speed")
 
     def run_until(self, t: float, timeout: float = DISCOVERY_TIMEOUT + EVENT_TIMEOUT) -> None:
-        """Spin until /clock reads ``t`` and every per-tick stream received so far has caught up with it too.
+        """Spin until /clock reads ``t`` and every per-tick stream has caught up with it too.
         The clock message of a tick is published first: on a loaded machine the listener may take it while the
         same tick's (and earlier ticks') other messages still wait in their queues, so a test that read them
         after a bare clock wait would find a gap (CI did, at load 8: no joint states in [4.6, 23.4] s). The stamped
         streams have caught up when their last header stamp reads ``t``, the unstamped ones when their last
-        message was published after the first /clock that read ``t``."""
+        message was published after the first /clock that read ``t``. A stream with nothing received yet has not
+        (each topic is matched on its own: the first /clock can come while another topic is not matched yet)."""
         def caught_up():
             if self.clock < t:
                 return False
-            if not all(t_of(self.msgs[k][-1].header.stamp) >= t for k in self.TICK_STREAMS if self.msgs[k]):
+            if not all(self.msgs[k] and t_of(self.msgs[k][-1].header.stamp) >= t for k in self.TICK_STREAMS):
                 return False
             s = self.clock_published(t)
-            return all(self.sent[k][-1] >= s for k in self.UNSTAMPED_STREAMS if self.msgs[k])
+            return all(self.msgs[k] and self.sent[k][-1] >= s for k in self.UNSTAMPED_STREAMS)
         spin_until(self.node, caught_up, timeout,
                    f"simulation time {t} s on /clock and {', '.join(self.TICK_STREAMS + self.UNSTAMPED_STREAMS)}")
 
