@@ -41,7 +41,7 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
     from ..physics import error_estimate, warmup
     from ..physics.medium import coefficients_report
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadyFailed, SteadySolver, summary
+    from ..physics.steady import SteadyFailed, SteadySolver, solve_with_coarse, summary
     scene, accuracy = error_estimate.resolve_accuracy(scene)     # accuracy.rtol: the edge length it chooses
     compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
     model = RobotModel(scene)
@@ -52,7 +52,11 @@ def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = T
     for rpm in (omega_rpm if omega_rpm is not None else [scene.motor.omega_rpm]):
         w = rpm * RPM
         try:
-            sol = solver.solve(w, start=prev)
+            if prev is None:            # the space estimate's coarse solve first, the fine one started from it
+                sol, coarse = solve_with_coarse(solver, space.solver, w)
+                space.use(coarse)
+            else:
+                sol = solver.solve(w, start=prev)
         except SteadyFailed as exc:
             out.append({"scene": scene.scene.name, "n_flagella": scene.robot.n_flagella, "omega_T": w,
                         "steady": False, "method": "steady", "error": str(exc),

@@ -78,6 +78,11 @@ class SpaceEstimator:
         self.solver = SteadySolver(self.model)
         self._last = None
 
+    def use(self, sol) -> None:
+        """The coarse equilibrium at the next speed, already solved (physics.steady.solve_with_coarse): estimate()
+        continues from it."""
+        self._last = sol
+
     def estimate(self, fine: dict) -> dict[str, float] | None:
         """The space error of each output of the steady summary ``fine``; None if the coarse robot has no
         equilibrium there."""

@@ -189,6 +189,27 @@ class _BorderedPattern:
 
 
 
+#: _BorderedPattern of each structure built in this process (a sweep's points share a few): key -> pattern
+_PATTERNS: dict = {}
+#: patterns kept at most (a sweep has a handful of (n, L) structures)
+_PATTERN_CACHE_SIZE = 16
+
+
+def bordered_pattern(pattern, N: int, n_edges: int, head, tail, fixed, gauge, bordered: bool) -> _BorderedPattern:
+    """The :class:`_BorderedPattern` of this structure, built once per process: it depends on the structure alone
+    (the model's CSC pattern, the edges, the prescribed DOFs and the gauge), and is only read after it is built."""
+    arrays = (pattern.indptr, pattern.indices, head, tail, fixed, gauge)
+    key = (N, n_edges, pattern.ndof, bool(bordered)) + tuple(
+        (np.asarray(a).dtype.str, np.asarray(a).shape, np.ascontiguousarray(a).tobytes()) for a in arrays)
+    got = _PATTERNS.get(key)
+    if got is None:
+        got = _BorderedPattern(pattern, N, n_edges, head, tail, fixed, gauge, bordered)
+        if len(_PATTERNS) >= _PATTERN_CACHE_SIZE:
+            _PATTERNS.pop(next(iter(_PATTERNS)))
+        _PATTERNS[key] = got
+    return got
+
+
 def conjugate_pairs(mu: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
     """``mu`` without a complex mode whose conjugate is missing. The pencil is real, so its modes come in
     conjugate pairs; ARPACK's k modes of largest |nu| can end on half a pair, and the modes examined must be every
@@ -352,7 +373,7 @@ class SteadySolver:
         self._tail, self._head = e[:, 0], e[:, 1]
         self._is_fixed = np.zeros(model.ndof, bool)
         self._is_fixed[self.fixed] = True
-        self._pattern = _BorderedPattern(model.pattern, N, net.n_edges, self._head, self._tail, self.fixed,
+        self._pattern = bordered_pattern(model.pattern, N, net.n_edges, self._head, self._tail, self.fixed,
                                          self.gauge, bordered=len(self.gauge) > 0)
         self._ex = np.eye(3)[0]
         self._dv_dU = np.zeros(model.ndof)
@@ -519,11 +540,56 @@ class SteadySolver:
         (:meth:`FreeRobot.first_guess`)."""
         return (self.net.initial_q(), *self.problem.first_guess(omega_T))
 
-    def solve(self, omega_T: float, start: SteadySolution | None = None, min_fraction: float = 1e-3
-              ) -> SteadySolution:
+    def guess_from(self, other: "SteadySolver", sol: SteadySolution):
+        """(q, omega_t, U) on this solver's mesh from ``sol``, an equilibrium of the same robot on ``other``'s (the
+        same scene at another flagellum edge length, e.g. Richardson's coarse one), or None if the two robots
+        differ beyond their flagella's edge counts.
+
+        The rigid parts (head, shaft, plate, sockets) are the same nodes and edges in both: copied. Along each
+        flagellum the node positions are a cubic (Hermite) interpolation of the other's in arc length and the twist angles a linear
+        interpolation of the other's at the edge midpoints. Both are measured from the reference frames carried
+        from the straight robot's, which is where a solve from the straight robot measures them, so the guess is
+        that solve's answer up to the discretisation's difference; Newton removes the rest."""
+        a, b = other.net, self.net
+        if (len(a.flagella_nodes) != len(b.flagella_nodes) or a.n_nodes - sum(map(len, a.flagella_nodes))
+                != b.n_nodes - sum(map(len, b.flagella_nodes)) or type(other.problem) is not type(self.problem)):
+            return None
+        def rigid(n_total, parts):
+            mask = np.ones(n_total, bool)
+            for p in parts:
+                mask[p] = False
+            return np.nonzero(mask)[0]
+
+        # a flagellum's first node p_i is the socket's end: it stays with the rigid parts
+        ra = rigid(a.n_nodes, [f[1:] for f in a.flagella_nodes])
+        rb = rigid(b.n_nodes, [f[1:] for f in b.flagella_nodes])
+        ea = rigid(a.n_edges, a.flagella_edges)
+        eb = rigid(b.n_edges, b.flagella_edges)
+        if len(ra) != len(rb) or len(ea) != len(eb):
+            return None
+        Na, Nb = a.n_nodes, b.n_nodes
+        xa = sol.q[: 3 * Na].reshape(Na, 3)
+        q = b.initial_q()
+        xb = q[: 3 * Nb].reshape(Nb, 3)
+        xb[rb] = xa[ra]
+        q[3 * Nb + eb] = sol.q[3 * Na + ea]
+        for na, nb, fa, fb in zip(a.flagella_nodes, b.flagella_nodes, a.flagella_edges, b.flagella_edges):
+            sa = np.linspace(0.0, 1.0, len(na))
+            sb = np.linspace(0.0, 1.0, len(nb))
+            xb[nb] = _hermite(sa, xa[na], sb)
+            ma = 0.5 * (sa[1:] + sa[:-1])
+            mb = 0.5 * (sb[1:] + sb[:-1])
+            q[3 * Nb + fb] = np.interp(mb, ma, sol.q[3 * Na + fa])
+        return q, sol.omega_t, -sol.v
+
+    def solve(self, omega_T: float, start: SteadySolution | None = None, min_fraction: float = 1e-3,
+              guess: tuple | None = None) -> SteadySolution:
         """The relative equilibrium at omega_T (rad/s), continued from ``start`` (default: the straight robot at
         rest). Newton first tries the whole way; where it fails, the step in omega_T is halved (continuation),
-        and steps grow again by doubling. Raises SteadyFailed with the reason when no equilibrium is found."""
+        and steps grow again by doubling. Raises SteadyFailed with the reason when no equilibrium is found.
+
+        ``guess``: (q, omega_t, U) at omega_T itself, measured from the straight robot's reference frames (see
+        :meth:`guess_from`), where Newton starts instead; no continuation then (SteadyFailed if it fails)."""
         t0 = time.perf_counter()
         problem = self.problem
         target = float(omega_T)
@@ -533,7 +599,13 @@ class SteadySolver:
                                "frame turning with the robot it turns, so no relative equilibrium exists (only "
                                "gravity along x keeps the axial symmetry); a time-stepped run (flagbot run) shows "
                                "the motion")
-        if start is None:
+        if guess is not None:
+            q, omega_t, U = guess[0].copy(), float(guess[1]), float(guess[2])
+            ratio = omega_t / target if target else 0.0
+            committed = self.model.elastic.frames0.copy()
+            w_done = target                  # no continuation: a failure at the target raises
+            q_gauge = self.net.initial_q()[self.gauge]
+        elif start is None:
             q, omega_t, U = self.initial_guess(target)
             ratio = omega_t / target if target else 0.0          # omega_t / omega_T of the guess
             committed = self.model.elastic.frames0.copy()
@@ -613,7 +685,7 @@ class SteadySolver:
         Mm = bordered(Ka)
         return A, D, Mm, omega_t
 
-    def stability(self, sol: SteadySolution, k: int = 12) -> Stability:
+    def stability(self, sol: SteadySolution, k: int = 12, vectors: bool = True) -> Stability:
         """Growth rates mu of small perturbations of the equilibrium, in the frame that follows its rigid motion.
 
         The linearised dynamics A dz + D dz' + Mm dz'' = 0 (:meth:`linearization`: the bordered steady Jacobian,
@@ -626,7 +698,12 @@ class SteadySolver:
         apart from the neutral modes of the symmetry: a sideways shift and a tilt of the whole robot (it swims
         the same along any axis, from any point) appear in the turning frame as oscillations at exactly
         +-i omega_t. Inertia is included: the centripetal load reaches the drag at ~1800 rpm for design 2's
-        flagellum, where the overdamped picture calls a folding equilibrium stable."""
+        flagellum, where the overdamped picture calls a folding equilibrium stable.
+
+        ``vectors=False``: the eigenvalues alone (ARPACK's Ritz vectors are not formed), so the verdict, ``rate``
+        and ``rates`` are the same but the modes are not classified: ``twist_shares`` is empty and
+        ``shape_rate``, ``twist_rate`` and ``twist_frequency`` are NaN (what a sweep, which records only
+        ``stable``, does not need)."""
         problem = self.problem
         A, D, Mm, omega_t = self.linearization(sol)
         n = A.shape[0]
@@ -648,17 +725,18 @@ class SteadySolver:
         v0 = np.random.default_rng(0).standard_normal(op.shape[0])
         while True:
             try:
-                nu, vec = spla.eigs(op, k=k, which="LM", return_eigenvectors=True, tol=1e-10, maxiter=5000,
-                                    v0=v0)
+                got = spla.eigs(op, k=k, which="LM", return_eigenvectors=vectors, tol=1e-10, maxiter=5000, v0=v0)
+                nu, vec = got if vectors else (got, None)
             except spla.ArpackNoConvergence as exc:      # the converged ones are still eigenvalues
-                nu, vec = exc.eigenvalues, exc.eigenvectors
+                nu, vec = exc.eigenvalues, (exc.eigenvectors if vectors else None)
             keep = np.abs(nu) > 1e-300
-            nu, vec = nu[keep], vec[:, keep]
-            mu = sigma + 1.0 / nu
+            mu = sigma + 1.0 / nu[keep]
             paired = _paired(mu)
-            mu, vec = mu[paired], vec[:, paired]
+            mu = mu[paired]
             order = np.argsort(-mu.real)
-            mu, vec = mu[order], vec[:, order]
+            mu = mu[order]
+            if vectors:
+                vec = vec[:, keep][:, paired][:, order]
             neutral = problem.neutral(mu, omega_t, sigma)
             # every mode with |mu| below the neutral ones' omega_t is examined: more modes until they are found
             if neutral.sum() >= problem.neutral_modes or k >= min(MAX_MODES, op.shape[0] - 2):
@@ -669,6 +747,9 @@ class SteadySolver:
         growing = rest.real > GROWTH_RTOL * np.abs(rest)
         if not growing.any() and np.any(rest.real >= -GROWTH_RTOL * np.abs(rest)):
             rate = 0.0            # the slowest mode neither grows nor decays (to round-off): marginal
+        if not vectors:
+            return Stability(stable=not growing.any(), rate=rate, rates=[complex(m) for m in mu],
+                             neutral=int(neutral.sum()))
         shares = self._twist_shares(vec[:n])
         twist = ~neutral & (shares > TWIST_SHARE)
         shape = ~neutral & ~twist
@@ -693,6 +774,41 @@ class SteadySolver:
         a = np.abs(z[:ndof]) ** 2
         total = w @ a
         return np.where(total > 0, (w[tw] @ a[tw]) / np.where(total > 0, total, 1.0), 0.0)
+
+
+def _hermite(s: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The cubic Hermite interpolation of the rows ``y`` at increasing ``s`` (slopes by central differences,
+    one-sided at the ends) at ``t``, each row a point: the curve through the points with a continuous tangent
+    (scipy.interpolate would cost a sweep worker ~0.3 s of importing)."""
+    m = np.gradient(y, s, axis=0)
+    k = np.clip(np.searchsorted(s, t, side="right") - 1, 0, len(s) - 2)
+    h = s[k + 1] - s[k]
+    u = ((t - s[k]) / h)[:, None]
+    u2, u3 = u * u, u * u * u
+    return ((2 * u3 - 3 * u2 + 1) * y[k] + (u3 - 2 * u2 + u) * h[:, None] * m[k]
+            + (-2 * u3 + 3 * u2) * y[k + 1] + (u3 - u2) * h[:, None] * m[k + 1])
+
+
+def solve_with_coarse(solver: SteadySolver, coarse: SteadySolver, omega_T: float
+                      ) -> tuple[SteadySolution, SteadySolution | None]:
+    """(fine, coarse): the equilibrium at omega_T on ``coarse``'s mesh (the same scene at twice the edge length:
+    Richardson's second solve), solved first from the straight robot, then on ``solver``'s mesh started from it
+    (:meth:`SteadySolver.guess_from`): a few Newton iterations instead of a solve from the straight robot. Where
+    the coarse robot has no equilibrium, or Newton from its guess fails, the fine one is solved from the straight
+    robot as before (coarse None in the first case). Raises SteadyFailed if the fine robot has none."""
+    try:
+        csol = coarse.solve(omega_T)
+    except SteadyFailed:
+        return solver.solve(omega_T), None
+    guess = solver.guess_from(coarse, csol)
+    if guess is not None:
+        try:
+            sol = solver.solve(omega_T, guess=guess)
+            sol.wall_seconds += csol.wall_seconds
+            return sol, csol
+        except SteadyFailed:
+            pass
+    return solver.solve(omega_T), csol
 
 
 def summary(model: RobotModel, sol: SteadySolution) -> dict:

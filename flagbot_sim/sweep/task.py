@@ -89,17 +89,20 @@ def run_der(scene: Scene, settings: SteadySettings) -> dict:
 def run_der_steady(scene: Scene) -> dict:
     from ..physics import error_estimate, warmup
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadySolver, summary
+    from ..physics.steady import SteadySolver, solve_with_coarse, summary
 
     warmup.ensure_compiled()
     w0 = time.perf_counter()
     scene, _ = error_estimate.resolve_accuracy(scene)      # accuracy.rtol: the edge length it chooses
     model = RobotModel(scene)
     solver = SteadySolver(model)
-    sol = solver.solve(scene.omega_T)
+    # the space estimate's coarse solve first, the fine one started from it (a few Newton iterations)
+    space = error_estimate.SpaceEstimator(scene)
+    sol, coarse = solve_with_coarse(solver, space.solver, scene.omega_T)
+    space.use(coarse)
     s = summary(model, sol)
-    s.update(error_estimate.for_steady(model, sol, s))
-    stable = solver.stability(sol).stable
+    s.update(error_estimate.for_steady(model, sol, s, space))
+    stable = solver.stability(sol, vectors=False).stable     # the sweep records the verdict alone
     omega_T = scene.omega_T
     return {"framework": "der", "error": "", "hit_cap": False, "converged": True, "method": "steady",
             "stable": stable, "residual": sol.residual, "omega_h": s["omega_h"], "omega_t": s["omega_t"],
