@@ -50,7 +50,8 @@ def test_bash_completes_subcommands_nested_ones_and_options(bash_script):
     commands = set(parser._subparsers._group_actions[0].choices)
     assert set(complete(bash_script, "flagbot", "")) == commands and "completion" in commands
     assert complete(bash_script, "flagbot", "be") == ["beam", "bench"]
-    assert complete(bash_script, "flagbot", "bench", "") == ["accuracy", "speed", "memory", "startup", "flood"]
+    assert complete(bash_script, "flagbot", "bench", "") == ["accuracy", "speed", "memory", "startup", "flood",
+                                                                 "steady"]
     assert complete(bash_script, "flagbot", "--v") == ["--version"]
     assert complete(bash_script, "flagbot", "sweep", "design2", "--eng") == ["--engine"]
     assert complete(bash_script, "flagbot", "bench", "accuracy", "--qu") == ["--quick"]

@@ -1,5 +1,5 @@
-"""``flagbot bench accuracy|speed|memory|startup|flood``: the benchmarks of :mod:`flagbot_sim.bench`, each loaded
-only when it runs (registration imports nothing heavy)."""
+"""``flagbot bench accuracy|speed|memory|startup|flood|steady``: the benchmarks of :mod:`flagbot_sim.bench`, each
+loaded only when it runs (registration imports nothing heavy)."""
 from __future__ import annotations
 
 from .. import bench
@@ -33,3 +33,8 @@ def register(sub) -> None:
                                       "valid cmd_omega from another process")
     bench.flood_arguments(f)
     f.set_defaults(func=_run("flood"))
+    from ..bench import steady as bench_steady          # stdlib imports only
+    st = bsub.add_parser("steady", help="flagbot steady vs BDF2 time stepping to the same accuracy, per case; the "
+                                        "paper's four sweeps as whole commands against an older checkout (--against)")
+    bench_steady.arguments(st)
+    st.set_defaults(func=_run("steady"))

@@ -1,0 +1,76 @@
+"""The steady solver's shortcuts: the fine solve started from Richardson's coarse one, the bordered pattern built
+once per structure, the stability verdict without eigenvectors. Each must give what the plain path gives."""
+import numpy as np
+import pytest
+
+from flagbot_sim.physics import error_estimate
+from flagbot_sim.physics.model import RobotModel
+from flagbot_sim.physics.steady import SteadySolver, _hermite, solve_with_coarse, summary
+from flagbot_sim.scene import load_scene
+
+
+def _solvers(name, overrides):
+    sc = load_scene(name, overrides)
+    return sc, SteadySolver(RobotModel(sc)), error_estimate.SpaceEstimator(sc)
+
+
+@pytest.mark.parametrize("name, overrides, keys", [
+    ("design1", ["robot.n_flagella=3", "motor.omega_rpm=100"], ("omega_h", "omega_t", "v")),
+    ("design2", ["robot.n_flagella=2", "motor.omega_rpm=250", "flagellum.length=0.11"], ("omega_h", "omega_t", "v")),
+    ("clamped_flagellum", ["motor.omega_rpm=100"], ("Fx", "Tx")),
+])
+def test_the_fine_solve_from_the_coarse_one_is_the_equilibrium_from_the_straight_robot(name, overrides, keys):
+    sc, S, space = _solvers(name, overrides)
+    plain = S.solve(sc.omega_T)
+    fine, coarse = solve_with_coarse(SteadySolver(RobotModel(sc)), space.solver, sc.omega_T)
+    assert coarse is not None and len(coarse.q) < len(fine.q)
+    a, b = summary(S.model, plain), summary(S.model, fine)
+    for k in keys:
+        assert b[k] == pytest.approx(a[k], rel=1e-5), k
+    assert fine.residual <= S.tol
+    # the same shape, node by node (not only the same rates)
+    N = S.net.n_nodes
+    assert np.max(np.abs(fine.q[: 3 * N] - plain.q[: 3 * N])) < 1e-6 * sc.flagellum.length
+    # started next to it: fewer Newton iterations than from the straight robot
+    assert fine.iterations < plain.iterations
+    # the space estimate from the coarse solution handed over equals the one that solves it again
+    space.use(coarse)
+    handed = space.estimate(summary(S.model, plain))
+    again = error_estimate.SpaceEstimator(sc).estimate(summary(S.model, plain))
+    for k in handed:
+        assert handed[k] == pytest.approx(again[k], rel=1e-6, abs=1e-12), k
+
+
+def test_no_guess_across_different_robots():
+    _, S2, _ = _solvers("design1", ["robot.n_flagella=2"])
+    sc3, S3, _ = _solvers("design1", ["robot.n_flagella=3"])
+    assert S2.guess_from(S3, S3.solve(sc3.omega_T)) is None
+
+
+def test_hermite_interpolation_passes_through_the_points_and_keeps_a_line_straight():
+    s = np.linspace(0.0, 1.0, 7)
+    y = np.stack([np.sin(3 * s), s ** 3, 1.0 - 2.0 * s], axis=1)
+    assert np.allclose(_hermite(s, y, s), y, atol=1e-14)
+    t = np.linspace(0.0, 1.0, 23)
+    assert np.allclose(_hermite(s, y, t)[:, 2], 1.0 - 2.0 * t, atol=1e-14)
+    # a smooth curve: several times closer than the chords (np.interp)
+    cubic = np.max(np.abs(_hermite(s, y, t)[:, 0] - np.sin(3 * t)))
+    chords = np.max(np.abs(np.interp(t, s, y[:, 0]) - np.sin(3 * t)))
+    assert cubic < 0.25 * chords
+
+
+def test_the_bordered_pattern_is_shared_by_robots_of_one_structure_only():
+    _, a, _ = _solvers("design1", ["motor.omega_rpm=50"])
+    _, b, _ = _solvers("design1", ["motor.omega_rpm=200"])
+    _, c, _ = _solvers("design1", ["robot.n_flagella=3"])
+    assert a._pattern is b._pattern and a._pattern is not c._pattern
+
+
+def test_the_verdict_without_eigenvectors_is_the_verdict_with_them():
+    sc, S, _ = _solvers("design2", ["robot.n_flagella=3"])
+    sol = S.solve(sc.omega_T)
+    full, bare = S.stability(sol), S.stability(sol, vectors=False)
+    assert (bare.stable, bare.neutral) == (full.stable, full.neutral)
+    assert bare.rate == pytest.approx(full.rate, rel=1e-8)
+    assert sorted(abs(m) for m in bare.rates) == pytest.approx(sorted(abs(m) for m in full.rates), rel=1e-8)
+    assert bare.twist_shares == [] and np.isnan(bare.shape_rate)
