@@ -38,6 +38,12 @@ def parse_rpm_list(text: str) -> list[float]:
 def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = True) -> list[dict]:
     """The steady state of ``scene`` at each motor speed (rpm; default the scene's), as summary dicts. A failure
     at one speed is that entry's ``error``; the next speed starts again from the straight robot."""
+    from ..physics.steady import one_blas_thread
+    with one_blas_thread():          # small sparse problems: BLAS threads cost more than they compute
+        return _solve_scene(scene, omega_rpm, stability)
+
+
+def _solve_scene(scene, omega_rpm: list[float] | None, stability: bool) -> list[dict]:
     from ..physics import error_estimate, warmup
     from ..physics.medium import coefficients_report
     from ..physics.model import RobotModel
