@@ -235,3 +235,19 @@ def test_summary_json_is_strict_where_a_ratio_is_undefined(tmp_path):
     assert math.isnan(s["beam_vs_der"]["nlb n=2"]["relative_difference"][0])
     back = json.loads(dumps(s), parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
     assert back["beam_vs_der"]["nlb n=2"]["relative_difference"] == [None, None, None]
+
+
+def test_figures_drawn_by_two_processes_are_the_figures_drawn_by_one(sweep_dir, tmp_path):
+    from flagbot_sim.sweep.plots import make_all
+    outs = {}
+    for k in (1, 2):
+        d = tmp_path / f"p{k}"
+        d.mkdir()
+        for name in ("sweep.json", "results.csv"):
+            (d / name).write_bytes((sweep_dir / name).read_bytes())
+        outs[k] = (d, make_all(d, processes=k))
+    (d1, o1), (d2, o2) = outs[1], outs[2]
+    names = [os.path.basename(p) for p in o1["figures"]]
+    assert names == [os.path.basename(p) for p in o2["figures"]] and len(names) == 7
+    for name in names + ["summary.json"]:
+        assert (d1 / name).read_bytes() == (d2 / name).read_bytes(), name

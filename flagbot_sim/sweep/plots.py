@@ -17,6 +17,8 @@ pyplot state), so tests can inspect its lines and labels before anything is save
 from __future__ import annotations
 
 import math
+import os
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -442,9 +444,45 @@ def _suffix(extra: tuple, L: float | None, several_L: bool) -> str:
     return ("_" + "_".join(parts)) if parts else ""
 
 
-def make_all(directory: str | Path, dpi: int = 120) -> dict:
+def _draw(jobs: list, dpi: int) -> None:
+    for path, make in jobs:
+        make().savefig(path, dpi=dpi)
+
+
+def _draw_all(jobs: list, dpi: int, processes: int) -> None:
+    """Draw and save every (path, make_figure) job: the first half here, the other half in a forked copy of
+    this process at the same time (each figure is independent; the drawing, not the data, is most of a sweep's
+    last seconds). Where fork is missing or fails, or the copy fails, this process draws its half too."""
+    if processes < 2 or len(jobs) < 2 or not hasattr(os, "fork"):
+        _draw(jobs, dpi)
+        return
+    mine, theirs = jobs[0::2], jobs[1::2]
+    try:
+        pid = os.fork()
+    except OSError:
+        _draw(jobs, dpi)
+        return
+    if pid == 0:                                   # the copy: its half, then out without Python's exit handlers
+        code = 1
+        try:
+            _draw(theirs, dpi)
+            code = 0
+        finally:
+            os._exit(code)
+    try:
+        _draw(mine, dpi)
+    finally:
+        _, status = os.waitpid(pid, 0)
+    if os.waitstatus_to_exitcode(status) != 0:
+        _draw(theirs, dpi)
+
+
+def make_all(directory: str | Path, dpi: int = 120, processes: int | None = None) -> dict:
     """Read DIR/results.csv (and the manifest, for the grid keys), write the PNGs and summary.json into DIR.
-    Returns {"figures": [paths], "summary": {...}}."""
+    Returns {"figures": [paths], "summary": {...}}. The figures are drawn by ``processes`` processes (default:
+    two where there are two cores, else one)."""
+    if processes is None:
+        processes = 2 if (os.cpu_count() or 1) >= 2 else 1
     directory = Path(directory)
     rows = read_results(directory)
     if not rows:
@@ -456,7 +494,7 @@ def make_all(directory: str | Path, dpi: int = 120) -> dict:
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(tuple((k, r[k]) for k in extra_keys), []).append(r)
-    figures, summary = [], {"scene": scene_name, "groups": []}
+    jobs, summary = [], {"scene": scene_name, "groups": []}
     for extra, grows in sorted(groups.items()):
         Ls = sorted({r["L"] for r in grows})
         tag = ", ".join(f"{k} = {v}" for k, v in extra)
@@ -465,22 +503,21 @@ def make_all(directory: str | Path, dpi: int = 120) -> dict:
             sfx = _suffix(extra, L, len(Ls) > 1)
             head = f"{scene_name}, L = {1e3 * L:g} mm" + (f", {tag}" if tag else "")
             Lrows = [r for r in grows if r["L"] == L]
-            made += [(f"speed_vs_omega{sfx}.png", figure_speed(Lrows, L, title=f"speed: {head}")),
-                     (f"head_spin{sfx}.png", figure_head_spin(Lrows, L, title=f"head spin: {head}")),
-                     (f"deflection{sfx}.png", figure_deflection(Lrows, L, title=f"beam tip deflection: {head}"))]
+            made += [(f"speed_vs_omega{sfx}.png", partial(figure_speed, Lrows, L, title=f"speed: {head}")),
+                     (f"head_spin{sfx}.png", partial(figure_head_spin, Lrows, L, title=f"head spin: {head}")),
+                     (f"deflection{sfx}.png", partial(figure_deflection, Lrows, L,
+                                                      title=f"beam tip deflection: {head}"))]
             summary["groups"].append({"extra": dict(extra), **summarise(Lrows, L)})
         made.append((f"speed_vs_length{_suffix(extra, None, False)}.png",
-                     figure_length(grows, title=f"{scene_name}: v vs omega_T by flagellum length"
-                                                + (f", {tag}" if tag else ""))))
-        for name, fig in made:
-            path = directory / name
-            fig.savefig(path, dpi=dpi)
-            figures.append(str(path))
+                     partial(figure_length, grows, title=f"{scene_name}: v vs omega_T by flagellum length"
+                                                         + (f", {tag}" if tag else ""))))
+        jobs += [(directory / name, make) for name, make in made]
     if extra_keys and len(groups) > 1 and any(r["framework"] == "der" for r in rows):
-        path = directory / "speed_by_group.png"
-        figure_groups(rows, extra_keys, title=f"{scene_name}: DER speed by " + ", ".join(extra_keys)).savefig(
-            path, dpi=dpi)
-        figures.append(str(path))
+        jobs.append((directory / "speed_by_group.png",
+                     partial(figure_groups, rows, extra_keys,
+                             title=f"{scene_name}: DER speed by " + ", ".join(extra_keys))))
+    _draw_all(jobs, dpi, processes)
+    figures = [str(path) for path, _ in jobs]
     (directory / "summary.json").write_text(json_output(summary, indent=1))     # strict JSON: NaN written as null
     return {"figures": figures, "summary": summary}
 
