@@ -51,19 +51,31 @@ def arguments(ap) -> None:
 
 # --------------------------------------------------------------------------------------------- (a) per case
 def _steady_once(scene) -> tuple[float, float, dict]:
-    """(wall of flagbot steady's work for one speed, wall of the solve alone, its summary row)."""
-    from ..commands.steady import solve_scene
+    """(wall of flagbot steady's work for one speed, wall of the solve alone, its summary row). The work is
+    commands/steady.py's solve_scene for one speed, step by step (a bench does not import the commands): the
+    model, the coarse and fine solves, the summary, the space-error estimate, the stability, on one BLAS
+    thread."""
+    from ..physics import error_estimate, warmup
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadySolver, solve_with_coarse
-    from ..physics import error_estimate
-    t0 = time.perf_counter()
-    row = solve_scene(scene, None, stability=True)[0]
-    whole = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    model = RobotModel(scene)
-    space = error_estimate.SpaceEstimator(scene)
-    solve_with_coarse(SteadySolver(model), space.solver, scene.omega_T)
-    return whole, time.perf_counter() - t0, row
+    from ..physics.steady import SteadySolver, one_blas_thread, solve_with_coarse, summary
+    with one_blas_thread():
+        t0 = time.perf_counter()
+        sc, _ = error_estimate.resolve_accuracy(scene)
+        warmup.ensure_compiled(groups=warmup.groups_for(sc, time_stepping=False))
+        model = RobotModel(sc)
+        solver = SteadySolver(model)
+        space = error_estimate.SpaceEstimator(sc)
+        sol, coarse = solve_with_coarse(solver, space.solver, sc.omega_T)
+        space.use(coarse)
+        row = summary(model, sol)
+        row.update(error_estimate.for_steady(model, sol, row, space))
+        row["stability"] = solver.stability(sol).to_dict()
+        whole = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        model = RobotModel(sc)
+        space = error_estimate.SpaceEstimator(sc)
+        solve_with_coarse(SteadySolver(model), space.solver, sc.omega_T)
+        return whole, time.perf_counter() - t0, row
 
 
 def compare_case(scene_name: str, extra: list[str], rpm: float, repeat: int, dts: list[float],
