@@ -232,11 +232,11 @@ def test_a_numpy_process_forks_its_helper_despite_openblas_worker_threads(tmp_pa
 import os
 import numpy as np, scipy.linalg, scipy.sparse.linalg
 from numba.core import event
-from flagbot_sim.physics import warmup
+from flagbot_sim.physics import blas, warmup
 a = np.random.default_rng(0).random((300, 300))
 scipy.linalg.lu_factor(a @ a)                        # both BLAS pools started
 threads = len(os.listdir("/proc/self/task"))
-assert threads == 1 + warmup._openblas_workers(), (threads, warmup._openblas_workers())
+assert threads == 1 + blas.workers(), (threads, blas.workers())
 assert warmup._can_fork()
 forked = []
 init = warmup._Helper.__init__

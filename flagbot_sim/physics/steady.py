@@ -25,7 +25,6 @@ the straight robot makes it robust: when Newton fails, the step in omega_T is ha
 """
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -790,46 +789,10 @@ def _hermite(s: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
             + (-2 * u3 + 3 * u2) * y[k + 1] + (u3 - u2) * h[:, None] * m[k + 1])
 
 
-#: OpenBLAS's thread-count functions by the names its builds export: (set, get)
-_OPENBLAS_THREADS = (("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
-                     ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"),
-                     ("openblas_set_num_threads64_", "openblas_get_num_threads64_"),
-                     ("openblas_set_num_threads", "openblas_get_num_threads"))
-
-
-@contextlib.contextmanager
 def one_blas_thread():
-    """Every OpenBLAS loaded in this process (numpy's, scipy's) on one thread for the duration, then as it was.
-
-    The steady solver's matrices are small (hundreds of unknowns): SuperLU's and ARPACK's BLAS calls cost more in
-    waking and joining threads than they compute, so with the default thread pool a solve with its stability took
-    ~2x the CPU, and ARPACK's part ~10x, of one thread's (a sweep's workers run with one thread for the same
-    reason). Where the libraries cannot be found (not Linux, another BLAS) nothing changes."""
-    import ctypes
-    restore = []
-    try:
-        with open("/proc/self/maps") as f:
-            paths = sorted({line.split()[-1] for line in f if "openblas" in line.lower() and ".so" in line})
-    except OSError:
-        paths = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for set_name, get_name in _OPENBLAS_THREADS:
-            setter, getter = getattr(lib, set_name, None), getattr(lib, get_name, None)
-            if setter is not None and getter is not None:
-                before = int(getter())
-                if before != 1:
-                    setter(1)
-                    restore.append((setter, before))
-                break
-    try:
-        yield
-    finally:
-        for setter, before in restore:
-            setter(before)
+    """Every OpenBLAS loaded in this process on one thread for the duration (:func:`.blas.one_thread`)."""
+    from .blas import one_thread
+    return one_thread()
 
 
 def solve_with_coarse(solver: SteadySolver, coarse: SteadySolver, omega_T: float

@@ -584,39 +584,10 @@ def _can_fork() -> bool:
         threads = len(os.listdir("/proc/self/task"))
     except OSError:
         return False
-    return threads <= 1 + (_openblas_workers() if threads > 1 else 0)
-
-
-#: what OpenBLAS builds name their thread count's getter (plain, 64-bit interface, scipy's wheels' prefix)
-_OPENBLAS_GET_THREADS = ("openblas_get_num_threads", "openblas_get_num_threads64_",
-                         "scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_")
-
-
-def _openblas_workers() -> int:
-    """The worker threads of the OpenBLAS libraries this process has loaded (0 for a library without the fork
-    handler or the getter: its threads then count as foreign)."""
-    import ctypes
-    try:
-        with open("/proc/self/maps") as f:
-            paths = {line.split(maxsplit=5)[5].strip() for line in f if "openblas" in line.lower()}
-    except (OSError, IndexError):
-        return 0
-    workers = 0
-    for path in sorted(paths):
-        if "openblas" not in os.path.basename(path).lower():
-            continue
-        try:
-            lib = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)     # (loaded already: no new load)
-            lib.openblas_fork_handler                                      # noqa: B018 (raises if absent)
-        except (OSError, AttributeError):
-            continue
-        for name in _OPENBLAS_GET_THREADS:
-            getter = getattr(lib, name, None)
-            if getter is not None:
-                getter.restype = ctypes.c_int
-                workers += max(0, getter() - 1)
-                break
-    return workers
+    if threads == 1:
+        return True
+    from .blas import workers
+    return threads <= 1 + workers()
 
 
 def _start_helper(groups: list[str]) -> _Helper | None:

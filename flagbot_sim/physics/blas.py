@@ -1,0 +1,84 @@
+"""The OpenBLAS libraries this process has loaded (numpy's and scipy's wheels each bring one): their worker
+threads and their thread count.
+
+Two things in the package care. The compile helper may be forked from a process whose only other threads are
+OpenBLAS's workers (warmup.py): OpenBLAS stops its pool before a fork (its pthread_atfork handler,
+``openblas_fork_handler``) and starts it again at its next call, in parent and child alike. And the steady solver
+runs with one BLAS thread (:func:`one_thread`): its matrices are small, and waking a pool costs more than it
+computes. Where no OpenBLAS can be found (not Linux, another BLAS) :func:`workers` is 0 and :func:`one_thread`
+changes nothing.
+"""
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+
+#: thread-count functions by the names OpenBLAS builds export them under (set, get): scipy's wheels' prefix with
+#: the 64-bit interface, the prefix alone, the plain names with and without the 64-bit suffix
+_THREAD_FUNCTIONS = (("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
+                     ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"),
+                     ("openblas_set_num_threads64_", "openblas_get_num_threads64_"),
+                     ("openblas_set_num_threads", "openblas_get_num_threads"))
+
+#: the largest thread count each library has had while this module watched it (a smaller count set later keeps
+#: the pool's threads: OpenBLAS only idles them)
+_PEAK: dict[str, int] = {}
+
+
+def _libraries():
+    """(path, handle, set, get) of every OpenBLAS loaded here that exports its thread-count functions."""
+    try:
+        with open("/proc/self/maps") as f:
+            paths = {line.split(maxsplit=5)[5].strip() for line in f
+                     if "openblas" in line.lower() and len(line.split(maxsplit=5)) == 6}
+    except OSError:
+        return
+    for path in sorted(p for p in paths if "openblas" in os.path.basename(p).lower()):
+        try:
+            lib = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)      # (loaded already: no new load)
+        except OSError:
+            continue
+        for set_name, get_name in _THREAD_FUNCTIONS:
+            setter, getter = getattr(lib, set_name, None), getattr(lib, get_name, None)
+            if setter is not None and getter is not None:
+                getter.restype = ctypes.c_int
+                yield path, lib, setter, getter
+                break
+
+
+def _count(path: str, getter) -> int:
+    n = _PEAK[path] = max(_PEAK.get(path, 1), int(getter()))
+    return n
+
+
+def workers() -> int:
+    """The worker threads of the loaded OpenBLAS libraries that stop themselves before a fork (a library
+    without the fork handler counts 0: its threads are then foreign to :func:`warmup._can_fork`)."""
+    total = 0
+    for path, lib, _, getter in _libraries():
+        if getattr(lib, "openblas_fork_handler", None) is not None:
+            total += _count(path, getter) - 1
+    return total
+
+
+@contextlib.contextmanager
+def one_thread():
+    """Every loaded OpenBLAS on one thread for the duration, then as it was.
+
+    The steady solver's matrices are small (hundreds of unknowns): SuperLU's and ARPACK's BLAS calls cost more in
+    waking and joining threads than they compute, so with the default thread pool a solve with its stability took
+    ~2x the CPU, and ARPACK's part ~10x, of one thread's (a sweep's workers run with one thread for the same
+    reason)."""
+    restore = []
+    for path, _, setter, getter in _libraries():
+        before = int(getter())
+        _count(path, getter)
+        if before != 1:
+            setter(1)
+            restore.append((setter, before))
+    try:
+        yield
+    finally:
+        for setter, before in restore:
+            setter(before)
