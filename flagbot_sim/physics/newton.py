@@ -23,6 +23,7 @@ import math
 import numpy as np
 
 from .effects import EFFECT_TYPES, GranularYield, Gravity, HeadDrag, HeadTorque, Inertia, RFTDrag
+from .frames import angle3
 from .jit import address, function_at, kernel, stage
 from .linsolve import ArrowSolver
 
@@ -195,6 +196,25 @@ def residual_norms(r, scale):
     return _norms(r, scale)
 
 
+@stage
+def _sums(w, err, q_new, q_old):
+    """(sum w err^2, sum w (q_new - q_old)^2), summed in index order."""
+    e2 = 0.0
+    d2 = 0.0
+    for i in range(w.shape[0]):
+        e2 += w[i] * err[i] * err[i]
+        d = q_new[i] - q_old[i]
+        d2 += w[i] * d * d
+    return e2, d2
+
+
+@kernel
+def error_sums(w, err, q_new, q_old):
+    """(|err|^2, |q_new - q_old|^2) weighted by w: the error control's sums (Stepper._error_sums), the same in
+    the stepper's Python code and the compiled steps (_advance), to the last bit."""
+    return _sums(w, err, q_new, q_old)
+
+
 @kernel
 def robot_pose(q, i0, i2, rim, P):
     """The robot's pose into P (9: 3x3 row-major; columns: the axis through the nodes i0 -> i2, the plate rim
@@ -253,15 +273,21 @@ def _all_finite(x):
 
 
 #: the signature of _newton as StepNewton.solve calls it (compiled from it by physics.warmup, with no model built)
-NEWTON_SIGNATURE = ("- i1 f1 i f f1 f f1 f i i1 (i2 i2 f2) (f2 f2 f1) (f1 f1 i2 i2 i2 f1 f2 f1 f1 f1 i2 i2 f2 f2) "
-                    "(f1 i1 f1 i1 i1 i1 f1 f1 i2 i3 i3 i3 i1 f i1 f i i i1 i i1 i1 f f i2 i1) i1 i1 i1 f1 f i "
-                    "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1) i1 i1 f1 f1 f1")
+_EL = "(f1 f1 i2 i2 i2 f1 f2 f1 f1 f1 i2 i2 f2 f2)"
+_EF = "(f1 i1 f1 i1 i1 i1 f1 f1 i2 i3 i3 i3 i1 f i1 f i i i1 i i1 i1 f f i2 i1)"
+_SOL = "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1)"
+NEWTON_SIGNATURE = f"- i1 f1 i f f1 f f1 f i i1 (i2 i2 f2) (f2 f2 f1) {_EL} {_EF} i1 i1 i1 f1 f i {_SOL} i1 i1 f1 f1 f1"
+#: the signature of _advance as StepNewton.advance calls it
+ADVANCE_SIGNATURE = (f"i i1 i i i i i1 (i2 i2 f2) {_EL} {_EF} i1 i1 i1 f1 {_SOL} i1 i1 f1 f1 f1 i1 f1 f2 f3 f3 f3 f2 f1 "
+                     "i1 f1 i1 i1 f1 f2 f1")
 
 
 def compile_newton() -> None:
-    """Compile (or load) the solve for the signature it is called with: no kernel it calls is needed for that."""
+    """Compile (or load) the solve and the steps for the signatures they are called with: no kernel they call is
+    needed for that (both call them by address)."""
     from .jit import signature
     _newton.compile(signature(NEWTON_SIGNATURE).args)
+    _advance.compile(signature(ADVANCE_SIGNATURE).args)
 
 
 #: what the next evaluation of the trial iterate is for
@@ -415,6 +441,273 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
     return done > 0, it, q, v, (t, length, d1, d2, rt)
 
 
+# ----------------------------------------------------------------------------------------------- steps
+#: the solve as _advance calls it, by address (its code is not compiled again into _advance): its return type,
+#: then NEWTON_SIGNATURE's arguments; and the predictor's kernel (stepper._predict_cylindrical)
+NEWTON_AT = "(b i f1 f1 (f2 f1 f2 f2 f1)) " + NEWTON_SIGNATURE[2:]
+PREDICT_AT = "- f2 f2 f2 f f f f b i i i f2"
+_newton_at, _predict_at = function_at(NEWTON_AT), function_at(PREDICT_AT)
+
+#: _advance's layout of its arrays (Stepper.advance fills and reads them)
+#: Q rows: the state's q, v, q_prev, v_prev, q_prev2; the state before it's v_prev and q_prev2
+Q_ROWS = 7
+#: sc: the state's t, drive angle, h, h_prev, h_next; the state before it's the same five
+#: flags: the state has q_prev, q_prev2; the state before it has q_prev2; there is a state before it
+#: cfg: dt (fixed steps) or the largest step, tol, rtol, atol, min_dt, turn limit, t_end, t_stop, due_at, omega,
+#:      the velocity error's gain (VELOCITY_GAIN of the integrator)
+#: icfg: integrator order, max_iterations, error control (1/0), max steps, fixed steps so far (in/out), a driver
+#:       (1/0), the error norm's count, VELOCITY_ERROR_EVERY, steps committed (out)
+#: obs_i: has a head, head edge, shaft edge, the observed node, the axis's nodes (2)
+#: ob: phi_h, phi_t, rate_h, rate_t, speed, axis (3), position (3)
+#: out rows (one per step): t, velocity error, Newton iterations, phi_h, phi_t, position (3), dt reductions,
+#:      dt_min
+OUT_COLS = 10
+#: last: the last step's Newton iterations, residual, line-search cuts, Jacobians, chord rejections, dt
+#:       reductions, rejections, error norm, dt_min, the last step size tried, velocity error, its step size
+LAST = 12
+#: what _advance returns: the steps asked for are done (or an output time is reached); a fixed step's Newton
+#: failed (the stepper's Python code halves it: Stepper.step(resume=...)); an error-controlled step fell below
+#: numerics.min_dt (StepFailed)
+ADVANCED, FIXED_FAILED, BELOW_MIN_DT = 0, 1, 2
+
+
+@kernel
+def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots, fix_diag, scale, sol, dest, axis,
+             kept, kept_pose, stats, pax, w_norm, Q, T, D1, D2, RT, sc, flags, cfg, icfg, obs_i, ob, out, last):
+    """Up to icfg[3] steps (Stepper.step with one sub-step / Stepper.step_adaptive, then Observer.record and
+    Simulation.step's counters), each the same arithmetic as the Python code, in one call: the prediction, the
+    plan of the integrator, the solve (_newton, by address ``nfn``), the error estimate and the next step size,
+    the observer's spin angles, rates and position. The arrays (layout above) hold the state and the one
+    before it, in and out. Returns ADVANCED, FIXED_FAILED or BELOW_MIN_DT; icfg[8] = the steps committed."""
+    n = Q.shape[1]
+    order, max_it, adaptive, max_steps = icfg[0], icfg[1], icfg[2] != 0, icfg[3]
+    has_driver, count, every = icfg[5] != 0, icfg[6], icfg[7]
+    dt, tol, rtol, atol, min_dt, turn, t_end, t_stop, due_at, omega, vgain = (
+        cfg[0], cfg[1], cfg[2], cfg[3], cfg[4], cfg[5], cfg[6], cfg[7], cfg[8], cfg[9], cfg[10])
+    i0, i1, i2 = pax[0], pax[1], pax[2]
+    has_head, e_head, e_shaft, node, ka, kb = obs_i[0], obs_i[1], obs_i[2], obs_i[3], obs_i[4], obs_i[5]
+    v0, a0, qt, err = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    k = 0
+    status = ADVANCED
+    icfg[8] = 0
+    while k < max_steps:
+        q, v, qp, vp, qp2 = Q[0], Q[1], Q[2], Q[3], Q[4]
+        t0, ang0, h1, h2, h_next = sc[0], sc[1], sc[2], sc[3], sc[4]
+        have1, have2 = flags[0] != 0, flags[1] != 0
+        if not t0 < t_stop:
+            break
+        if adaptive:
+            h = min(h_next if h_next != 0.0 else dt, dt, turn)
+            h_end = t_end - t0
+            if h >= h_end:
+                h = h_end
+            elif h > 0.5 * h_end:
+                h = 0.5 * h_end
+        else:
+            h = dt
+        its_all = 0
+        reductions = rejections = 0
+        cuts = jacs = chords = 0.0
+        norm = 0.0
+        ve = math.nan
+        while True:
+            # -- one attempt (Stepper._attempt): the plan, the prediction, the solve
+            angle = ang0 + (omega * h if has_driver else 0.0)
+            if order == 2 and have1 and h1 > 0.0:
+                w = h / h1
+                c0 = (1.0 + 2.0 * w) / (1.0 + w)
+                c1 = -(1.0 + w)
+                c2 = w * w / (1.0 + w)
+                dv = c0 / h
+                for i in range(n):
+                    v0[i] = (c1 * q[i] + c2 * qp[i]) / h
+                    g = (c1 * v[i] + c2 * vp[i]) / h
+                    a0[i] = dv * v0[i] + g
+                da = dv * dv
+            else:
+                ih = 1.0 / h
+                for i in range(n):
+                    v0[i] = -ih * q[i]
+                    a0[i] = ih * (v0[i] - v[i])
+                dv = ih
+                da = ih * ih
+            if h1 <= 0.0 or not have1:
+                for i in range(n):
+                    qt[i] = q[i] + h * v[i]
+            else:
+                second = h2 > 0.0 and have2
+                p1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)
+                p0 = -h * (h + h1) / (h1 + h2) if second else 0.0
+                for i in range(n):
+                    s1 = (q[i] - qp[i]) / h1
+                    s0 = (qp[i] - qp2[i]) / h2 if second else s1
+                    qt[i] = q[i] + p1 * s1 + p0 * s0
+                x = q[: 3 * N].reshape((N, 3))
+                x1 = qp[: 3 * N].reshape((N, 3))
+                x2 = qp2[: 3 * N].reshape((N, 3)) if second else x1
+                _predict_at(pfn)(x, x1, x2, h1, h2 if second else 0.0, p1, p0, second, i0, i1, i2,
+                                 qt[: 3 * N].reshape((N, 3)))
+            for j in range(4):
+                stats[j] = 0.0
+            ok, its, qn, vn, fr = _newton_at(nfn)(
+                fns, qt.copy(), N, dv, v0, da, a0, angle, twist_hinge, codes, net, (D1[0], T[0], RT[0]), el, ef,
+                fixed, fix_slots, fix_diag, scale, tol, max_it, sol, dest, axis, kept, kept_pose, stats)
+            cuts += stats[1]
+            jacs += stats[2]
+            chords += stats[3]
+            if not adaptive:
+                if not ok:
+                    status = FIXED_FAILED
+                break
+            # -- error control (Stepper.step_adaptive)
+            if not ok:
+                factor = 0.25
+                reductions += 1
+            else:
+                its_all += its
+                # the integrator's Milne estimate (ImplicitEuler.error / BDF2.error), if it has the history
+                have_err = False
+                if order == 2:
+                    if have2 and h1 > 0.0 and h2 > 0.0:
+                        T0, T1, xx = -(h1 + h2), -h1, h
+                        L0 = (xx - T1) * xx / ((T0 - T1) * T0)
+                        L1 = (xx - T0) * xx / ((T1 - T0) * T1)
+                        L2 = (xx - T0) * (xx - T1) / (T0 * T1)
+                        cc = (1.0 + 2.0 * h / h1) / (1.0 + h / h1)
+                        f = (h / cc) / (h / cc + h + h1 + h2)
+                        for i in range(n):
+                            err[i] = (qn[i] - (L0 * qp2[i] + L1 * qp[i] + L2 * q[i])) * f
+                        have_err = True
+                elif have1 and h1 > 0.0:
+                    r1 = h / h1
+                    f = h / (2.0 * h + h1)
+                    for i in range(n):
+                        err[i] = (qn[i] - (q[i] + r1 * (q[i] - qp[i]))) * f
+                    have_err = True
+                gain = 3.0 if order == 2 else 2.0
+                if order == 2 and have1 and h1 > 0.0:
+                    w = h / h1
+                    gain *= (1.0 + 2.0 * w) / (1.0 + w)
+                norm = 0.0
+                e2 = d2 = 0.0
+                if have_err:
+                    e2, d2 = _sums(w_norm, err, qn, q)
+                    if count != 0:
+                        norm = gain * math.sqrt(e2) / (atol * math.sqrt(count) + rtol * math.sqrt(d2))
+                if norm <= 1.0:
+                    if have_err:
+                        ve = _velocity_error(order, vgain, h, h1, e2, d2)
+                    grow = 2.0 if norm == 0.0 else min(2.0, max(1.0, 0.9 * norm ** (-1.0 / (order + 1))))
+                    h_next = min(grow * h, dt)
+                    break
+                factor = max(0.2, 0.9 * norm ** (-1.0 / (order + 1)))
+                rejections += 1
+            h *= factor
+            if h < min_dt:
+                status = BELOW_MIN_DT
+                h = h / factor                # the step size of the last attempt (Stepper._failed)
+                break
+        last[0], last[1], last[2], last[3], last[4] = its_all if adaptive or not ok else its, stats[0], cuts, jacs, chords
+        last[5], last[6], last[7], last[8], last[9] = reductions, rejections, norm, h, h
+        if status != ADVANCED:
+            break
+        if not adaptive:
+            its_all = its
+            h_next = 0.0
+            icfg[4] += 1            # Stepper._sample_velocity_error
+            if icfg[4] % every == 0:
+                have_err = False
+                if order == 2:
+                    if have2 and h1 > 0.0 and h2 > 0.0:
+                        T0, T1, xx = -(h1 + h2), -h1, h
+                        L0 = (xx - T1) * xx / ((T0 - T1) * T0)
+                        L1 = (xx - T0) * xx / ((T1 - T0) * T1)
+                        L2 = (xx - T0) * (xx - T1) / (T0 * T1)
+                        cc = (1.0 + 2.0 * h / h1) / (1.0 + h / h1)
+                        f = (h / cc) / (h / cc + h + h1 + h2)
+                        for i in range(n):
+                            err[i] = (qn[i] - (L0 * qp2[i] + L1 * qp[i] + L2 * q[i])) * f
+                        have_err = True
+                elif have1 and h1 > 0.0:
+                    r1 = h / h1
+                    f = h / (2.0 * h + h1)
+                    for i in range(n):
+                        err[i] = (qn[i] - (q[i] + r1 * (q[i] - qp[i]))) * f
+                    have_err = True
+                if have_err:
+                    e2, d2 = _sums(w_norm, err, qn, q)
+                    ve = _velocity_error(order, vgain, h, h1, e2, d2)
+        last[10] = ve
+        t1 = t0 + h
+        tn, ln, d1n, d2n, rtn = fr
+        # -- the observer (Observer.record), from the committed state (old) to the new one
+        dts = t1 - t0
+        if has_head:
+            b0, b1, b2 = qn[3 * kb] - qn[3 * ka], qn[3 * kb + 1] - qn[3 * ka + 1], qn[3 * kb + 2] - qn[3 * ka + 2]
+            nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+            b0, b1, b2 = b0 / nb, b1 / nb, b2 / nb
+            kk = 3 * N + e_head
+            u, z = D1[0, e_head], d1n[e_head]
+            dh = -(qn[kk] - q[kk] + angle3(u[0], u[1], u[2], z[0], z[1], z[2], b0, b1, b2))
+            kk = 3 * N + e_shaft
+            u, z = D1[0, e_shaft], d1n[e_shaft]
+            dtt = qn[kk] - q[kk] + angle3(u[0], u[1], u[2], z[0], z[1], z[2], b0, b1, b2)
+        else:
+            b0, b1, b2 = 1.0, 0.0, 0.0
+            dh = dtt = 0.0
+        ob[0] += dh
+        ob[1] += dtt
+        ob[2] = dh / dts
+        ob[3] = dtt / dts
+        y0, y1, y2 = qn[3 * node], qn[3 * node + 1], qn[3 * node + 2]
+        dd0, dd1, dd2 = y0 - ob[8], y1 - ob[9], y2 - ob[10]
+        ob[4] = -(dd0 * b0 + dd1 * b1 + dd2 * b2) / dts
+        ob[5], ob[6], ob[7], ob[8], ob[9], ob[10] = b0, b1, b2, y0, y1, y2
+        # -- commit: the state before becomes the one before the new state
+        for i in range(n):
+            Q[5, i] = vp[i]
+            Q[6, i] = qp2[i]
+            Q[4, i] = qp[i]
+            Q[3, i] = v[i]
+            Q[2, i] = q[i]
+            Q[0, i] = qn[i]
+            Q[1, i] = vn[i]
+        for e in range(T.shape[1]):          # (element by element: numba's array-to-slice copy compiles ~5 s)
+            for j in range(3):
+                T[1, e, j], D1[1, e, j], D2[1, e, j] = T[0, e, j], D1[0, e, j], D2[0, e, j]
+                T[0, e, j], D1[0, e, j], D2[0, e, j] = tn[e, j], d1n[e, j], d2n[e, j]
+        for e in range(RT.shape[1]):
+            RT[1, e] = RT[0, e]
+            RT[0, e] = rtn[e]
+        for j in range(5):
+            sc[5 + j] = sc[j]
+        sc[0], sc[1], sc[2], sc[3], sc[4] = t1, angle, h, h1, h_next
+        flags[2] = flags[1]
+        flags[1] = flags[0]
+        flags[0] = 1
+        flags[3] = 1
+        o = out[k]
+        o[0], o[1], o[2], o[3], o[4] = t1, ve, its_all, ob[0], ob[1]
+        o[5], o[6], o[7], o[8], o[9] = y0, y1, y2, reductions, h
+        k += 1
+        icfg[8] = k
+        if t1 >= due_at:
+            break
+    return status
+
+
+@stage
+def _velocity_error(order, vgain, h, h1, e2, d2):
+    """Stepper.velocity_error from the error sums."""
+    if d2 <= 0.0:
+        return 0.0
+    gain = vgain
+    if order == 2 and h1 > 0.0:
+        w = h / h1
+        gain *= (1.0 + 2.0 * w) / (1.0 + w)
+    return gain * math.sqrt(e2 / d2)
+
+
 # ----------------------------------------------------------------------------------------------- the object
 def supported(model, solver) -> bool:
     """Whether the compiled solve covers this model: the arrow solver, and only effects with a compiled term."""
@@ -457,6 +750,10 @@ class StepNewton:
         self.kept, self.kept_pose = kept, kept_pose
         self.stats = np.zeros(4)
         self.fns = kernel_addresses(model)
+        from .stepper import _predict_cylindrical
+        #: the solve's and the predictor's machine code, which _advance calls by address
+        self.newton_address = address(_newton, NEWTON_AT)
+        self.predict_address = address(_predict_cylindrical, PREDICT_AT)
 
     @staticmethod
     def _effect_terms(model) -> tuple:
@@ -489,3 +786,12 @@ class StepNewton:
                        float(plan.drive_angle), self.twist_hinge, self.order, self.net, (committed.d1, committed.t, committed.ref_twist),
                        self.el, self.ef, self.fixed, self.fix_slots, self.fix_diag, self.scale, float(tol),
                        int(max_iterations), self.sol, self.dest, self.axis, self.kept, self.kept_pose, self.stats)
+
+    def advance(self, b, max_steps: int) -> int:
+        """Up to ``max_steps`` steps from the state in the buffers ``b`` (stepper.StepBuffers, its cfg set by
+        Stepper.advance) in one compiled call (_advance): its status; b.icfg[8] the steps taken."""
+        b.icfg[3] = max_steps
+        return _advance(self.fns, self.newton_address, self.predict_address, self.N, self.twist_hinge, self.order,
+                        self.net, self.el, self.ef, self.fixed, self.fix_slots, self.fix_diag, self.scale, self.sol,
+                        self.dest, self.axis, self.kept, self.kept_pose, self.stats, b.pax, b.w_norm, b.Q, b.T,
+                        b.D1, b.D2, b.RT, b.sc, b.flags, b.cfg, b.icfg, b.obs_i, b.ob, b.out, b.last)

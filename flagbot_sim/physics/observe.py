@@ -208,9 +208,18 @@ class Observer:
         self.axis_now = a
         self._append(new.t, new)
 
+    def recorded(self, rows: np.ndarray) -> None:
+        """What :meth:`record` leaves behind, for steps the compiled steps took (stepper.Stepper.advance: one row
+        per step, t, -, -, phi_h, phi_t, position, ...; the instantaneous rates already set). Not clamped."""
+        for r in rows:
+            self._add((float(r[0]), float(r[3]), float(r[4]), r[5:8].copy(), np.zeros(3)))
+
     def _append(self, t: float, state: State | None = None) -> None:
         tip = self.corotating_tip(state) if (self.clamped and state is not None) else np.zeros(3)
-        sample = (t, self.phi_h, self.phi_t, self._pos.copy(), tip)
+        self._add((t, self.phi_h, self.phi_t, self._pos.copy(), tip))
+
+    def _add(self, sample: tuple) -> None:
+        t = sample[0]
         h = self._hist
         if len(h) >= 2 and t - h[-2][0] < self._spacing:
             h[-1] = sample              # too close to the sample before: the newest state replaces the last one

@@ -13,6 +13,7 @@ from .error_estimate import output_names
 from .medium import coefficients_report
 from .model import RobotModel
 from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, summary_fields
+from .newton import ADVANCED, BELOW_MIN_DT, FIXED_FAILED
 from .stepper import Stepper, StepStats
 
 
@@ -52,6 +53,7 @@ class Simulation:
         self.steady_detector = SteadyDetector(steady_window or ob.steady_window, steady_rtol)
         self.last_stats = StepStats(dt_min=self.dt)
         self._prev_state = None
+        self._buffers = None           # the compiled steps' arrays (advance), made at the first batch
         self._zero_counters()
 
     def _zero_counters(self) -> None:
@@ -87,14 +89,17 @@ class Simulation:
         """Error-controlled steps (time.rtol > 0): each step picks its own size."""
         return self.stepper.adaptive
 
-    def step(self, dt: float | None = None, t_end: float = math.inf) -> StepStats:
+    def step(self, dt: float | None = None, t_end: float = math.inf, *, _resume: StepStats | None = None,
+             _python_first: bool = False) -> StepStats:
         """Advance by dt (default: the scene's time.dt; with error control, one step of the size it picks, never
-        past t_end). Raises StepFailed and keeps the state if Newton fails."""
+        past t_end). Raises StepFailed and keeps the state if Newton fails. (``_resume`` / ``_python_first``:
+        a step the compiled steps of :meth:`advance` began, Stepper.step's.)"""
         w0 = time.perf_counter()
         if dt is None and self.stepper.adaptive:
-            new, stats = self.stepper.step_adaptive(self.state, t_end, self._omega)
+            new, stats = self.stepper.step_adaptive(self.state, t_end, self._omega, python_first=_python_first)
         else:
-            new, stats = self.stepper.step(self.state, self.dt if dt is None else dt, self._omega)
+            new, stats = self.stepper.step(self.state, self.dt if dt is None else dt, self._omega, resume=_resume,
+                                           python_first=_python_first)
         self.observer.record(self.state, new)
         self._prev_state = self.state
         self.state = new
@@ -116,27 +121,106 @@ class Simulation:
         self.wall_seconds += time.perf_counter() - w0
         return stats
 
-    def run(self, duration: float, callback: Callable[["Simulation"], None] | None = None) -> None:
+    def advance(self, max_steps: int, t_end: float = math.inf, t_stop: float = math.inf) -> int:
+        """Up to ``max_steps`` steps as :meth:`step` takes them (error control: towards ``t_end``), none from a
+        time >= ``t_stop``, with everything :meth:`step` does after each (the observer, the counters, the
+        steady-state rule), the same numbers to the last bit: in one compiled call (Stepper.advance) where it
+        applies (its kernel loaded: a first run compiles it in the background), else step by step. It also
+        stops after a step at which the steady-state rule samples. Returns the steps taken (0: t_stop reached).
+        Raises StepFailed and keeps the state of the steps before the failed one."""
+        st = self.stepper
+        if max_steps <= 0 or not self.time < t_stop:
+            return 0
+        if not st.can_advance(self.dt, self._omega):
+            self.step(t_end=t_end)
+            return 1
+        w0 = time.perf_counter()
+        b = self._buffers
+        if b is None:
+            from .stepper import StepBuffers
+            b = self._buffers = StepBuffers(st, self.observer)
+        b.load(self.state, self._prev_state, self.observer)     # (a caller may have changed them in place)
+        det = self.steady_detector
+        status = -1
+        try:
+            status = st.advance(b, self.dt, self._omega, min(max_steps, b.capacity), t_end, t_stop,
+                                det.next_check - 1e-9 * det.window)
+        except ZeroDivisionError:
+            pass             # a folded iterate: that step again, its first attempt in the Python loop (as step's)
+        k = int(b.icfg[8])
+        if k:
+            self._took(b, k)
+            if det.due(self.state.t):
+                det.update(self.state.t, *self._steady_sample())
+        self.wall_seconds += time.perf_counter() - w0
+        if status == ADVANCED:
+            return k
+        if status == FIXED_FAILED:
+            self.step(_resume=st.last_stats(b, failed=True))
+        elif status == BELOW_MIN_DT:
+            stats = st.last_stats(b)
+            raise st._failed(self.state, stats.substep_dts[0], stats)
+        else:
+            self.step(t_end=t_end, _python_first=True)
+        return k + 1
+
+    def _took(self, b, k: int) -> None:
+        """Simulation.step's work after each of the k steps the compiled steps took into ``b``."""
+        rows = b.out[:k]
+        self.state, self._prev_state = b.states()
+        ob, o = self.observer, b.ob
+        ob.phi_h, ob.phi_t, ob.rate_h, ob.rate_t, ob.speed = (float(x) for x in o[:5])
+        ob.axis_now = o[5:8].copy()
+        ob._pos = o[8:11].copy()
+        ob.recorded(rows)
+        self.last_stats = self.stepper.last_stats(b)
+        self.steps += k
+        self.newton_iterations += int(rows[:, 2].sum())
+        self.reductions += int(rows[:, 8].sum())
+        self._recent.extend(zip(rows[-CUT_WINDOW:, 8].astype(int).tolist(), rows[-CUT_WINDOW:, 9].tolist()))
+        self._recent_cuts = sum(r for r, _ in self._recent)
+        ve = self._velocity_errors
+        ve.extend(zip(rows[:, 0].tolist(), rows[:, 1].tolist()))
+        while ve and ve[0][0] < self.state.t - self.steady_detector.window:
+            ve.popleft()
+
+    def run(self, duration: float, callback: Callable[["Simulation"], None] | None = None,
+            every: int = 1) -> None:
         """Advance by ``duration`` of simulated time: whole steps of time.dt (rounded to a whole number of them),
-        or error-controlled steps ending exactly at the end."""
+        or error-controlled steps ending exactly at the end. ``callback`` is called after the first step, then
+        after every ``every``-th (1: each), and after the last; between its calls the steps run in batches
+        (:meth:`advance`)."""
+        every = max(1, int(every))
+        done = 0
+
+        def batch() -> int:               # steps to the next call of the callback
+            if callback is None:
+                return 1 << 30
+            return 1 if done == 0 else every - (done - 1) % every
         if self.stepper.adaptive:
             t_end = self.time + duration
-            while self.time < t_end - 1e-12 * max(1.0, abs(t_end)):
-                self.step(t_end=t_end)
-                if callback is not None:
+            t_stop = t_end - 1e-12 * max(1.0, abs(t_end))
+            while self.time < t_stop:
+                k = self.advance(batch(), t_end=t_end, t_stop=t_stop)
+                done += k
+                if callback is not None and ((k and (done - 1) % every == 0) or not self.time < t_stop):
                     callback(self)
             return
         n = max(1, int(round(duration / self.dt)))
-        for _ in range(n):
-            self.step()
-            if callback is not None:
+        while done < n:
+            done += self.advance(min(batch(), n - done))
+            if callback is not None and ((done - 1) % every == 0 or done == n):
                 callback(self)
 
     def run_until_steady(self, t_max: float, callback: Callable[["Simulation"], None] | None = None) -> bool:
-        """Step until the steady-state rule holds or the simulated time reaches t_max; True if steady."""
-        while not self.steady_detector.steady and self.time < t_max - 1e-9 * self.dt:
-            self.step()
-            if callback is not None:
+        """Step until the steady-state rule holds or the simulated time reaches t_max; True if steady (in batches
+        of steps between the rule's samples without a ``callback``, called after each step)."""
+        t_stop = t_max - 1e-9 * self.dt
+        while not self.steady_detector.steady and self.time < t_stop:
+            if callback is None:
+                self.advance(1 << 30, t_stop=t_stop)
+            else:
+                self.step()
                 callback(self)
         return self.steady_detector.steady
 

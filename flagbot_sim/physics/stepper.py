@@ -24,8 +24,8 @@ from .frames import EdgeFrames, cross3
 from .jit import kernel
 from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State, StepPlan
-from .newton import (CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, residual_norms,
-                     robot_pose, supported)
+from .newton import (CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, error_sums,
+                     residual_norms, robot_pose, supported)
 
 
 class StepFailed(RuntimeError):
@@ -311,21 +311,26 @@ class Stepper:
         return self.max_turn / w if w > 0.0 else math.inf
 
     # ------------------------------------------------------------------ fixed steps
-    def step(self, state: State, dt: float, omega: float = 0.0) -> tuple[State, StepStats]:
+    def step(self, state: State, dt: float, omega: float = 0.0, resume: StepStats | None = None,
+             python_first: bool = False) -> tuple[State, StepStats]:
         """Advance by exactly dt with the drive commanded at ``omega`` (rad/s; ignored without a driver): in
         equal sub-steps if the drive would turn more than max_turn, halved (then grown back) where Newton
-        fails."""
-        stats = StepStats(dt_min=dt)
+        fails. ``resume``: the stats of a first attempt at the whole dt that failed (in the compiled steps,
+        :meth:`advance`), continued from there; ``python_first``: the first attempt in the Python loop (the
+        compiled solve raised ZeroDivisionError in it)."""
+        stats = StepStats(dt_min=dt) if resume is None else resume
         n_turn = max(1, math.ceil(dt / self._turn_limit(omega) - 1e-9))
         h_cap = dt / n_turn
         remaining = dt
         h = h_cap
         cur = state
+        failed = resume is not None
         while remaining > 1e-12 * dt:
             h = min(h, remaining)
             if remaining - h < 1e-9 * dt:   # do not leave a sliver behind
                 h = remaining
-            new = self._attempt(cur, h, stats, omega)
+            new = None if failed else self._attempt(cur, h, stats, omega, python_first)
+            failed = python_first = False
             if new is None:
                 h *= 0.5
                 stats.reductions += 1
@@ -342,8 +347,48 @@ class Stepper:
             h = min(2.0 * h, h_cap)
         return cur, stats
 
+    # ------------------------------------------------------------------ many steps in one compiled call
+    def can_advance(self, dt: float, omega: float) -> bool:
+        """Whether :meth:`advance` runs the steps compiled: the compiled solve is loaded and applies, no effect
+        prescribes DOFs (the clamp's values are Python), and a fixed step needs no sub-steps for max_turn."""
+        if self._newton is None or len(self.fixed):
+            return False
+        return self.adaptive or math.ceil(dt / self._turn_limit(omega) - 1e-9) <= 1
+
+    def advance(self, b: "StepBuffers", dt: float, omega: float, max_steps: int, t_end: float = math.inf,
+                t_stop: float = math.inf, due_at: float = math.inf) -> int:
+        """Up to ``max_steps`` steps (:meth:`step` by ``dt`` / :meth:`step_adaptive` towards ``t_end``) from the
+        state in ``b``, the drive at ``omega``, and the observer's per-step work, in one compiled call
+        (newton._advance: the same numbers as step by step, to the last bit). It stops before a step from a time
+        >= ``t_stop`` and after the first step that ends at or after ``due_at``. Returns newton.ADVANCED, or
+        FIXED_FAILED (a fixed step's Newton failed at dt: continue with ``step(resume=...)``) or BELOW_MIN_DT
+        (raise :meth:`_failed`); b.icfg[8] steps were taken. Raises ZeroDivisionError (a folded configuration)
+        with b holding the steps taken before it."""
+        p = self.integrator.order
+        b.cfg[:] = (dt if not self.adaptive else self.dt_max, self.tol, self.rtol, self.atol, self.min_dt,
+                    self._turn_limit(omega), t_end, t_stop, due_at, omega, VELOCITY_GAIN[p])
+        b.icfg[:8] = (p, self.max_iterations, int(self.adaptive), 0, self._fixed_steps,
+                      int(self.model.driver is not None), self._norm_count, VELOCITY_ERROR_EVERY)
+        try:
+            return self._newton.advance(b, max_steps)
+        finally:
+            self._fixed_steps = int(b.icfg[4])
+
+    def last_stats(self, b: "StepBuffers", failed: bool = False) -> StepStats:
+        """The StepStats of the last step :meth:`advance` took or tried; ``failed`` (FIXED_FAILED): those of the
+        failed first attempt of a fixed step, to resume the step with (``step(resume=...)``)."""
+        L = b.last
+        if failed:
+            return StepStats(dt_min=float(L[9]), residual=float(L[1]), line_search_cuts=int(L[2]),
+                             jacobians=int(L[3]), chord_rejections=int(L[4]))
+        return StepStats(newton_iterations=int(L[0]), residual=float(L[1]), dt_min=float(L[8]), substeps=1,
+                         reductions=int(L[5]), line_search_cuts=int(L[2]), substep_dts=[float(L[9])],
+                         rejections=int(L[6]), jacobians=int(L[3]), chord_rejections=int(L[4]), error=float(L[7]),
+                         velocity_error=float(L[10]))
+
     # ------------------------------------------------------------------ error-controlled steps
-    def step_adaptive(self, state: State, t_end: float = math.inf, omega: float = 0.0) -> tuple[State, StepStats]:
+    def step_adaptive(self, state: State, t_end: float = math.inf, omega: float = 0.0,
+                      python_first: bool = False) -> tuple[State, StepStats]:
         """One accepted step whose local error estimate is within (rtol, atol), the drive commanded at ``omega``
         (rad/s); its size is chosen by the controller (never beyond t_end, time.dt or the turn limit). The next
         size is proposed in the new state's ``h_next``."""
@@ -356,7 +401,8 @@ class Stepper:
             h = 0.5 * h_end       # two similar steps rather than a long one and a sliver
         stats = StepStats(dt_min=h)
         while True:
-            new = self._attempt(state, h, stats, omega)
+            new = self._attempt(state, h, stats, omega, python_first)
+            python_first = False
             if new is None:
                 factor = 0.25
                 stats.reductions += 1
@@ -410,9 +456,8 @@ class Stepper:
 
     def _error_sums(self, err: np.ndarray, q_new: np.ndarray, q_old: np.ndarray) -> tuple[float, float, int]:
         """(|err|^2, |q_new - q_old|^2, count) over the free nodes and the rigid parts' twist angles (in metres)."""
-        w = self._norm_weights
-        d = q_new - q_old
-        return float(np.dot(w * err, err)), float(np.dot(w * d, d)), self._norm_count
+        e2, d2 = error_sums(self._norm_weights, err, q_new, q_old)    # the compiled steps' own sums (_advance)
+        return e2, d2, self._norm_count
 
     def error_norm(self, err: np.ndarray, q_new: np.ndarray, q_old: np.ndarray, gain: float = 1.0) -> float:
         """The step's relative velocity error, times the calibration ``gain``, over rtol (accepted if <= 1).
@@ -512,7 +557,8 @@ class Stepper:
         self._kept_pose[:] = self._pose(ctx.q)
         return True
 
-    def _attempt(self, state: State, h: float, stats: StepStats, omega: float) -> State | None:
+    def _attempt(self, state: State, h: float, stats: StepStats, omega: float,
+                 python_loop: bool = False) -> State | None:
         """One Newton solve of a step of size h from ``state``, the drive commanded at ``omega``; None if it
         does not converge.
 
@@ -526,7 +572,7 @@ class Stepper:
         plan = self.integrator.plan(state, h, angle)
         q = self.predict(state, h)
         model.prescribe(q, state, angle)
-        if self._newton is not None:
+        if self._newton is not None and not python_loop:
             st = self._newton.stats
             st[:] = 0.0
             try:
@@ -626,3 +672,76 @@ class Stepper:
         stats.newton_iterations += iterations
         return State(plan.t, ctx.q, ctx.v, EdgeFrames.of(ctx.frames), plan.drive_angle, plan.h, state.h, state.q,
                      state.v, state.q_prev)
+
+
+class StepBuffers:
+    """The arrays :meth:`Stepper.advance` runs its steps in (newton.py, _advance, has their layout): the state and
+    the one before it, the observer's accumulators, one row per step taken. ``load`` fills them from Python
+    objects, ``states`` reads them back."""
+
+    def __init__(self, stepper: Stepper, observer, capacity: int = 4096):
+        from .newton import LAST, OUT_COLS, Q_ROWS
+        model = stepper.model
+        net = model.net
+        n, ne, nh = int(net.ndof), len(net.edges), len(net.hinge_edges)
+        self.capacity = capacity
+        self.Q = np.zeros((Q_ROWS, n))
+        self.T, self.D1, self.D2 = np.zeros((2, ne, 3)), np.zeros((2, ne, 3)), np.zeros((2, ne, 3))
+        self.RT = np.zeros((2, nh))
+        self.sc = np.zeros(10)
+        self.flags = np.zeros(4, np.int64)
+        self.cfg = np.zeros(11)
+        self.icfg = np.zeros(9, np.int64)
+        self.pax = np.array(stepper._axis_nodes, np.int64)
+        self.w_norm = np.ascontiguousarray(stepper._norm_weights, dtype=float)
+        ob = observer
+        head = ob.has_head
+        self.obs_i = np.array([int(head), int(net.head_edge) if head else 0, int(net.shaft_edge) if head else 0,
+                               int(net.head_nodes[1]) if head else int(net.joint_node),
+                               int(net.head_nodes[0]) if head else 0, int(net.head_nodes[2]) if head else 0],
+                              np.int64)
+        self.ob = np.zeros(11)
+        self.out = np.zeros((capacity, OUT_COLS))
+        self.last = np.zeros(LAST)
+
+    def load(self, state: State, prev: State | None, observer) -> None:
+        """The state, the one before it and the observer's accumulators into the buffers."""
+        Q, sc, fl = self.Q, self.sc, self.flags
+        Q[0], Q[1] = state.q, state.v
+        fl[:] = 0
+        if state.q_prev is not None:
+            Q[2], Q[3] = state.q_prev, state.v_prev
+            fl[0] = 1
+        if state.q_prev2 is not None:
+            Q[4] = state.q_prev2
+            fl[1] = 1
+        f = state.frames
+        self.T[0], self.D1[0], self.D2[0], self.RT[0] = f.t, f.d1, f.d2, f.ref_twist
+        sc[:5] = state.t, state.drive_angle, state.h, state.h_prev, state.h_next
+        if prev is not None:
+            fl[3] = 1
+            if prev.v_prev is not None:
+                Q[5] = prev.v_prev
+            if prev.q_prev2 is not None:
+                Q[6] = prev.q_prev2
+                fl[2] = 1
+            g = prev.frames
+            self.T[1], self.D1[1], self.D2[1], self.RT[1] = g.t, g.d1, g.d2, g.ref_twist
+            sc[5:] = prev.t, prev.drive_angle, prev.h, prev.h_prev, prev.h_next
+        o = self.ob
+        o[:5] = observer.phi_h, observer.phi_t, observer.rate_h, observer.rate_t, observer.speed
+        o[5:8] = observer.axis_now
+        o[8:11] = observer._pos
+
+    def states(self) -> tuple[State, State]:
+        """(the state, the one before it) after steps were taken: new objects, sharing arrays as a step's
+        State does (the new state's q_prev is the one before's q)."""
+        Q, sc, fl = self.Q, self.sc, self.flags
+        c = lambda i, have: Q[i].copy() if have else None     # noqa: E731
+        prev = State(float(sc[5]), Q[2].copy(), Q[3].copy(),
+                     EdgeFrames(self.T[1].copy(), self.D1[1].copy(), self.D2[1].copy(), self.RT[1].copy()),
+                     float(sc[6]), float(sc[7]), float(sc[8]), c(4, fl[1]), c(5, fl[1]), c(6, fl[2]), float(sc[9]))
+        new = State(float(sc[0]), Q[0].copy(), Q[1].copy(),
+                    EdgeFrames(self.T[0].copy(), self.D1[0].copy(), self.D2[0].copy(), self.RT[0].copy()),
+                    float(sc[1]), float(sc[2]), float(sc[3]), prev.q, prev.v, prev.q_prev, float(sc[4]))
+        return new, prev

@@ -106,13 +106,14 @@ def _warm_time_stepping() -> None:
     """What a time-stepped Simulation adds to the model: the predictor and the observer's spin angle."""
     from .frames import angle3
     from .model import State
-    from .newton import residual_norms, robot_pose
+    from .newton import error_sums, residual_norms, robot_pose
     from .stepper import axis_nodes, predict
     net, q, x, t, length, d1, d2 = _tiny_network()
     v = np.zeros_like(q)
     st = State(0.0, q, v, None, 0.0, 1e-2, 1e-2, q.copy(), v.copy(), q.copy())
     predict(st, 1e-2, axis_nodes(net), net.n_nodes)
     residual_norms(v, v)
+    error_sums(v, v, v, v)
     i0, _, i2 = axis_nodes(net)
     robot_pose(q, i0, i2, int(net.edges[net.plate_edges[0], 1]), np.empty(9))
     u, w = d1[0], d2[0]
@@ -217,13 +218,13 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
     _group(_warm_stretch, ("elastic._stretch",), 0.25),
     _group(_warm_bend_twist, ("elastic._bend_twist",), 3.4),
     _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3", "newton.residual_norms",
-                                    "newton.robot_pose"), 0.65),
+                                    "newton.robot_pose", "newton.error_sums"), 0.65),
     _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.15),
     _group(_warm_rft, ("effects.rft",), 0.35),
     _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
     _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
     _group(_warm_spin_drag, ("elastic.tangent_torques",), 0.5),
-    _group(_warm_newton, ("newton._newton",), 3.5, background=True),
+    _group(_warm_newton, ("newton._newton", "newton._advance"), 3.5, background=True),
 )}
 
 #: what every model needs: its frames and its springs
