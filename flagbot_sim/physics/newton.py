@@ -487,6 +487,8 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
     i0, i1, i2 = pax[0], pax[1], pax[2]
     has_head, e_head, e_shaft, node, ka, kb = obs_i[0], obs_i[1], obs_i[2], obs_i[3], obs_i[4], obs_i[5]
     v0, a0, qt, err = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    m = T.shape[1] * 3
+    Tf, D1f, D2f = T.reshape(2 * m), D1.reshape(2 * m), D2.reshape(2 * m)
     k = 0
     status = ADVANCED
     icfg[8] = 0
@@ -566,24 +568,7 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
             else:
                 its_all += its
                 # the integrator's Milne estimate (ImplicitEuler.error / BDF2.error), if it has the history
-                have_err = False
-                if order == 2:
-                    if have2 and h1 > 0.0 and h2 > 0.0:
-                        T0, T1, xx = -(h1 + h2), -h1, h
-                        L0 = (xx - T1) * xx / ((T0 - T1) * T0)
-                        L1 = (xx - T0) * xx / ((T1 - T0) * T1)
-                        L2 = (xx - T0) * (xx - T1) / (T0 * T1)
-                        cc = (1.0 + 2.0 * h / h1) / (1.0 + h / h1)
-                        f = (h / cc) / (h / cc + h + h1 + h2)
-                        for i in range(n):
-                            err[i] = (qn[i] - (L0 * qp2[i] + L1 * qp[i] + L2 * q[i])) * f
-                        have_err = True
-                elif have1 and h1 > 0.0:
-                    r1 = h / h1
-                    f = h / (2.0 * h + h1)
-                    for i in range(n):
-                        err[i] = (qn[i] - (q[i] + r1 * (q[i] - qp[i]))) * f
-                    have_err = True
+                have_err = _milne(order, have1, have2, h, h1, h2, q, qp, qp2, qn, err)
                 gain = 3.0 if order == 2 else 2.0
                 if order == 2 and have1 and h1 > 0.0:
                     w = h / h1
@@ -616,24 +601,7 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
             h_next = 0.0
             icfg[4] += 1            # Stepper._sample_velocity_error
             if icfg[4] % every == 0:
-                have_err = False
-                if order == 2:
-                    if have2 and h1 > 0.0 and h2 > 0.0:
-                        T0, T1, xx = -(h1 + h2), -h1, h
-                        L0 = (xx - T1) * xx / ((T0 - T1) * T0)
-                        L1 = (xx - T0) * xx / ((T1 - T0) * T1)
-                        L2 = (xx - T0) * (xx - T1) / (T0 * T1)
-                        cc = (1.0 + 2.0 * h / h1) / (1.0 + h / h1)
-                        f = (h / cc) / (h / cc + h + h1 + h2)
-                        for i in range(n):
-                            err[i] = (qn[i] - (L0 * qp2[i] + L1 * qp[i] + L2 * q[i])) * f
-                        have_err = True
-                elif have1 and h1 > 0.0:
-                    r1 = h / h1
-                    f = h / (2.0 * h + h1)
-                    for i in range(n):
-                        err[i] = (qn[i] - (q[i] + r1 * (q[i] - qp[i]))) * f
-                    have_err = True
+                have_err = _milne(order, have1, have2, h, h1, h2, q, qp, qp2, qn, err)
                 if have_err:
                     e2, d2 = _sums(w_norm, err, qn, q)
                     ve = _velocity_error(order, vgain, h, h1, e2, d2)
@@ -646,12 +614,8 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
             b0, b1, b2 = qn[3 * kb] - qn[3 * ka], qn[3 * kb + 1] - qn[3 * ka + 1], qn[3 * kb + 2] - qn[3 * ka + 2]
             nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
             b0, b1, b2 = b0 / nb, b1 / nb, b2 / nb
-            kk = 3 * N + e_head
-            u, z = D1[0, e_head], d1n[e_head]
-            dh = -(qn[kk] - q[kk] + angle3(u[0], u[1], u[2], z[0], z[1], z[2], b0, b1, b2))
-            kk = 3 * N + e_shaft
-            u, z = D1[0, e_shaft], d1n[e_shaft]
-            dtt = qn[kk] - q[kk] + angle3(u[0], u[1], u[2], z[0], z[1], z[2], b0, b1, b2)
+            dh = -_spin(qn, q, N, e_head, D1f, d1n, b0, b1, b2)
+            dtt = _spin(qn, q, N, e_shaft, D1f, d1n, b0, b1, b2)
         else:
             b0, b1, b2 = 1.0, 0.0, 0.0
             dh = dtt = 0.0
@@ -664,21 +628,20 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
         ob[4] = -(dd0 * b0 + dd1 * b1 + dd2 * b2) / dts
         ob[5], ob[6], ob[7], ob[8], ob[9], ob[10] = b0, b1, b2, y0, y1, y2
         # -- commit: the state before becomes the one before the new state
+        # (element by element, in 1-D: numba's array-to-slice copy compiles ~5 s, a 2-D index twice a 1-D one)
+        vp2, qp3 = Q[5], Q[6]
         for i in range(n):
-            Q[5, i] = vp[i]
-            Q[6, i] = qp2[i]
-            Q[4, i] = qp[i]
-            Q[3, i] = v[i]
-            Q[2, i] = q[i]
-            Q[0, i] = qn[i]
-            Q[1, i] = vn[i]
-        for e in range(T.shape[1]):          # (element by element: numba's array-to-slice copy compiles ~5 s)
-            for j in range(3):
-                T[1, e, j], D1[1, e, j], D2[1, e, j] = T[0, e, j], D1[0, e, j], D2[0, e, j]
-                T[0, e, j], D1[0, e, j], D2[0, e, j] = tn[e, j], d1n[e, j], d2n[e, j]
-        for e in range(RT.shape[1]):
-            RT[1, e] = RT[0, e]
-            RT[0, e] = rtn[e]
+            vp2[i] = vp[i]
+            qp3[i] = qp2[i]
+            qp2[i] = qp[i]
+            vp[i] = v[i]
+            qp[i] = q[i]
+            q[i] = qn[i]
+            v[i] = vn[i]
+        _shift(Tf, tn.reshape(m))
+        _shift(D1f, d1n.reshape(m))
+        _shift(D2f, d2n.reshape(m))
+        _shift(RT.reshape(RT.size), rtn)
         for j in range(5):
             sc[5 + j] = sc[j]
         sc[0], sc[1], sc[2], sc[3], sc[4] = t1, angle, h, h1, h_next
@@ -694,6 +657,50 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
         if t1 >= due_at:
             break
     return status
+
+
+@stage
+def _milne(order, have1, have2, h, h1, h2, q, qp, qp2, qn, err):
+    """The integrator's local error estimate of the step h to qn into err (ImplicitEuler.error / BDF2.error,
+    the same expressions), if the state (q, qp, qp2; steps h1, h2) has the history it needs: whether it has."""
+    n = q.shape[0]
+    if order == 2:
+        if not (have2 and h1 > 0.0 and h2 > 0.0):
+            return False
+        T0, T1, x = -(h1 + h2), -h1, h
+        L0 = (x - T1) * x / ((T0 - T1) * T0)
+        L1 = (x - T0) * x / ((T1 - T0) * T1)
+        L2 = (x - T0) * (x - T1) / (T0 * T1)
+        c0 = (1.0 + 2.0 * h / h1) / (1.0 + h / h1)
+        f = (h / c0) / (h / c0 + h + h1 + h2)
+        for i in range(n):
+            err[i] = (qn[i] - (L0 * qp2[i] + L1 * qp[i] + L2 * q[i])) * f
+        return True
+    if not (have1 and h1 > 0.0):
+        return False
+    r1 = h / h1
+    f = h / (2.0 * h + h1)
+    for i in range(n):
+        err[i] = (qn[i] - (q[i] + r1 * (q[i] - qp[i]))) * f
+    return True
+
+
+@stage
+def _shift(buf, new):
+    """buf = [current, before]: the current values become those before, ``new`` the current ones."""
+    m = new.shape[0]
+    for i in range(m):
+        buf[m + i] = buf[i]
+        buf[i] = new[i]
+
+
+@stage
+def _spin(qn, q, N, e, D1f, d1n, b0, b1, b2):
+    """Observer._spin_increment of edge e: its twist angle's change plus its reference director's turn about
+    the axis b."""
+    k = 3 * N + e
+    return qn[k] - q[k] + angle3(D1f[3 * e], D1f[3 * e + 1], D1f[3 * e + 2], d1n[e, 0], d1n[e, 1], d1n[e, 2],
+                                 b0, b1, b2)
 
 
 @stage
