@@ -150,3 +150,77 @@ def test_the_compiled_newton_solve_gives_the_python_loops_numbers_to_the_last_bi
     assert na == nb
     for x, y in ((a.q, b.q), (a.v, b.v), (a.frames.d1, b.frames.d1), (a.frames.ref_twist, b.frames.ref_twist)):
         assert np.array_equal(x, y)
+
+
+def _same(x, y) -> bool:
+    """Equal to the last bit, NaN equal to NaN."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    return x.shape == y.shape and bool(np.all((x == y) | (np.isnan(x) & np.isnan(y))))
+
+
+@pytest.mark.parametrize("scene,extra", [
+    ("design1", ["robot.n_flagella=3", "motor.omega_rpm=150"]),
+    ("design1", ["robot.n_flagella=2"]),
+    ("design2", ["robot.n_flagella=3"]),
+    ("design2", ["robot.n_flagella=2", "time.integrator='implicit_euler'"]),
+    ("design1", ["robot.n_flagella=3", "scene.preset='fast'"]),                  # error control, rejections
+    ("design2", ["robot.n_flagella=2", "scene.preset='fast'"]),
+    ("design1", ["robot.n_flagella=2", "time.rtol=1e-3", "time.integrator='implicit_euler'"]),
+    # fixed steps whose Newton fails at dt: the compiled steps hand the step to the Python code, which halves it
+    ("design2", ["scene.effects=['inertia','rft','head_drag','head_torque','motor','granular_yield','gravity']"]),
+])
+def test_the_compiled_steps_give_the_step_by_step_numbers_to_the_last_bit(scene, extra):
+    """Simulation.run takes its steps in batches in one compiled call each (newton._advance: prediction, solve,
+    error estimate and step size, the observer's spin angles, rates and history); step by step the stepper's
+    Python code does the same. Both: the same states, observations, counts and steady-state rule, bit for bit
+    (a short steady window, so the rule samples between batches too; and the command changed once)."""
+    runs = []
+    for batched in (True, False):
+        sim = Simulation(load_scene(scene, extra), steady_window=0.2)
+        assert sim.stepper.can_advance(sim.dt, sim.omega_T)
+        for omega in (sim.omega_T, 0.5 * sim.omega_T):
+            sim.set_omega(omega)
+            if batched:
+                sim.run(0.6)
+            elif sim.adaptive:
+                t_end = sim.time + 0.6
+                while sim.time < t_end - 1e-12 * max(1.0, abs(t_end)):
+                    sim.step(t_end=t_end)
+            else:
+                for _ in range(int(round(0.6 / sim.dt))):
+                    sim.step()
+        runs.append(sim)
+    a, b = runs
+    assert (a.steps, a.newton_iterations, a.reductions) == (b.steps, b.newton_iterations, b.reductions)
+    assert a.steps > 20
+    assert a.state.t == b.state.t and a.state.h == b.state.h and a.state.h_next == b.state.h_next
+    for sa, sb in ((a.state, b.state), (a._prev_state, b._prev_state)):
+        for x, y in ((sa.q, sb.q), (sa.v, sb.v), (sa.q_prev, sb.q_prev), (sa.frames.t, sb.frames.t),
+                     (sa.frames.d1, sb.frames.d1), (sa.frames.d2, sb.frames.d2),
+                     (sa.frames.ref_twist, sb.frames.ref_twist)):
+            assert _same(x, y)
+    assert _same(a.snapshot().values(), b.snapshot().values())
+    ha, hb = a.observer._hist, b.observer._hist
+    assert len(ha) == len(hb) and all(x[0] == y[0] and x[1] == y[1] and x[2] == y[2] and _same(x[3], y[3])
+                                      for x, y in zip(ha, hb))
+    assert _same([e for _, e in a._velocity_errors], [e for _, e in b._velocity_errors])
+    assert _same(a.steady_detector.tails, b.steady_detector.tails) and a.steady == b.steady
+    assert len(a.steady_detector.samples) >= 3
+    la, lb = a.last_stats, b.last_stats
+    assert (la.newton_iterations, la.residual, la.dt_min, la.reductions, la.rejections) == \
+        (lb.newton_iterations, lb.residual, lb.dt_min, lb.reductions, lb.rejections)
+    sa, sb = a.summary(), b.summary()
+    for k in ("omega_h", "omega_t", "v", "steady_change", "time", "motor_torque"):
+        assert _same(sa[k], sb[k]), k
+
+
+def test_the_compiled_steps_call_back_as_often_as_the_steps_did():
+    """run(every=10) calls its callback after the first step, every 10th and the last, as a callback that acts
+    on every 10th step (the CLI's progress) would; batches end there."""
+    sim = small_robot()
+    seen = []
+    sim.run(0.35, callback=lambda s: seen.append(s.steps), every=10)
+    assert seen == [1, 11, 21, 31, 35]
+    seen.clear()
+    sim.run(0.05, callback=lambda s: seen.append(s.steps))
+    assert seen == [36, 37, 38, 39, 40]
