@@ -64,7 +64,9 @@ def cmd_run(args) -> int:
         if view is not None:
             view.start(sim)
             paced0 = time.perf_counter()
-        sim.run(duration, callback=progress)
+        # the progress acts on every 10th step: the steps between run in one compiled call each (a live view
+        # is served every step)
+        sim.run(duration, callback=progress, every=1 if view is not None else 10)
     except StepFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:
