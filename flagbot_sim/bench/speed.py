@@ -170,7 +170,9 @@ def _timed(root: str, argv: list[str]) -> tuple[float, float]:
     import sys
     env = dict(os.environ, PYTHONPATH=root)
     t0 = time.perf_counter()
-    p = subprocess.Popen([sys.executable, "-m", "flagbot_sim", *argv], env=env, stdout=subprocess.DEVNULL,
+    # cwd = root: ``python -m`` puts the working directory ahead of PYTHONPATH, so from inside a checkout both
+    # runs would import that checkout's package
+    p = subprocess.Popen([sys.executable, "-m", "flagbot_sim", *argv], env=env, cwd=root, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL)
     _, status, usage = os.wait4(p.pid, 0)
     wall = time.perf_counter() - t0
