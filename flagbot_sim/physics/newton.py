@@ -15,6 +15,15 @@ scene's order, and runs only their terms; an effect without a compiled term (a n
 
 A steady solver can use the same object once its problem is a plan of the same shape (affine v(q), a(q));
 the relative equilibrium's bordered system (physics/steady.py) is not yet one, and keeps its own Newton.
+
+Whole steps (:func:`_advance`, :meth:`StepNewton.advance`, driven by Stepper.advance and Simulation.advance /
+run): up to N steps in one call, each the stepper's Python code operation for operation (the integrator's plan,
+the predictor, this solve called by address, the Milne error estimate, the error control's step size, the
+fixed steps' sampled velocity error) and the observer's per-step work (spin angles, rates, speed, position),
+with the drive command an argument. It returns at the steady-state rule's next sample, at the end asked for,
+and where only the Python code goes on: a fixed step whose Newton fails at the whole dt (the stepper halves it)
+or an error-controlled step below numerics.min_dt (StepFailed). Not for scenes with prescribed DOFs (the
+clamp's values are Python) or fixed steps cut for max_turn: those step in Python, with the solve compiled.
 """
 from __future__ import annotations
 
