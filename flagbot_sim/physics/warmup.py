@@ -224,7 +224,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
     _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
     _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
     _group(_warm_spin_drag, ("elastic.tangent_torques",), 0.5),
-    _group(_warm_newton, ("newton._newton", "newton._advance"), 3.5, background=True),
+    _group(_warm_newton, ("newton._newton", "newton._advance"), 5.5, background=True),
 )}
 
 #: what every model needs: its frames and its springs
