@@ -224,3 +224,26 @@ def test_the_compiled_steps_call_back_as_often_as_the_steps_did():
     seen.clear()
     sim.run(0.05, callback=lambda s: seen.append(s.steps))
     assert seen == [36, 37, 38, 39, 40]
+
+
+@pytest.mark.parametrize("extra", [[], ["time.rtol=1e-3"]])
+def test_a_failing_step_in_a_batch_fails_as_it_does_step_by_step(extra):
+    """A step that cannot converge in the middle of a batch (fixed: the Python stepper halves it down to
+    min_dt; error-controlled: the compiled steps cut it below min_dt) raises the same StepFailed as step by step
+    and keeps the same last good state, the steps before it counted."""
+    got = []
+    for batched in (True, False):
+        sim = small_robot("numerics.min_dt=1e-4", *extra)
+        sim.run(0.2)
+        sim.stepper.max_iterations = 1           # (a scene refuses it: see test_numerics_limits.py)
+        sim.set_omega(40.0)                      # (below the turn limit: the fixed steps are batched)
+        with pytest.raises(StepFailed) as info:
+            if batched:
+                sim.run(1.0)
+            else:
+                while True:
+                    sim.step(t_end=sim.time + 1.0 if sim.adaptive else math.inf)
+        got.append((str(info.value), sim.steps, sim.state.t, sim.state.q.copy(), sim.snapshot().values()))
+    (ma, na, ta, qa, sa), (mb, nb, tb, qb, sb) = got
+    assert "did not converge" in ma
+    assert (ma, na, ta) == (mb, nb, tb) and np.array_equal(qa, qb) and np.array_equal(sa, sb)
