@@ -287,8 +287,8 @@ _EF = "(f1 i1 f1 i1 i1 i1 f1 f1 i2 i3 i3 i3 i1 f i1 f i i i1 i i1 i1 f f i2 i1)"
 _SOL = "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1)"
 NEWTON_SIGNATURE = f"- i1 f1 i f f1 f f1 f i i1 (i2 i2 f2) (f2 f2 f1) {_EL} {_EF} i1 i1 i1 f1 f i {_SOL} i1 i1 f1 f1 f1"
 #: the signature of _advance as StepNewton.advance calls it
-ADVANCE_SIGNATURE = (f"i i1 i i i i i1 (i2 i2 f2) {_EL} {_EF} i1 i1 i1 f1 {_SOL} i1 i1 f1 f1 f1 i1 f1 f2 f3 f3 f3 f2 f1 "
-                     "i1 f1 i1 i1 f1 f2 f1")
+ADVANCE_SIGNATURE = (f"i i1 i i i i i1 (i2 i2 f2) {_EL} {_EF} i1 i1 i1 f1 {_SOL} i1 i1 f1 f1 f1 i1 f1 "
+                     "f2 f3 f3 f3 f2 f1 i1 f1 i1 i1 f1 f2 f1")
 
 
 def compile_newton() -> None:
@@ -601,7 +601,8 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
                 status = BELOW_MIN_DT
                 h = h / factor                # the step size of the last attempt (Stepper._failed)
                 break
-        last[0], last[1], last[2], last[3], last[4] = its_all if adaptive or not ok else its, stats[0], cuts, jacs, chords
+        last[0] = its_all if adaptive or not ok else its
+        last[1], last[2], last[3], last[4] = stats[0], cuts, jacs, chords
         last[5], last[6], last[7], last[8], last[9] = reductions, rejections, norm, h, h
         if status != ADVANCED:
             break
