@@ -737,10 +737,11 @@ def _i64(a) -> np.ndarray:
 
 class StepNewton:
     """The Newton solve of a step (module docstring: the contract). ``kept`` / ``kept_pose`` are the kept
-    factorisation's coefficient and pose, shared with the stepper's Python loop (the same solver buffers)."""
+    factorisation's coefficient and pose, shared with the stepper's Python loop (the same solver buffers);
+    ``predictor`` the predictor's kernel (stepper._predict_cylindrical), which the whole steps call by address."""
 
     def __init__(self, model, solver: ArrowSolver, axis_nodes: tuple[int, int, int], rim: int,
-                 kept: np.ndarray, kept_pose: np.ndarray):
+                 kept: np.ndarray, kept_pose: np.ndarray, predictor):
         net, el = model.net, model.elastic
         self.model = model
         self.N = int(net.n_nodes)
@@ -767,10 +768,9 @@ class StepNewton:
         self.kept, self.kept_pose = kept, kept_pose
         self.stats = np.zeros(4)
         self.fns = kernel_addresses(model)
-        from .stepper import _predict_cylindrical
         #: the solve's and the predictor's machine code, which _advance calls by address
         self.newton_address = address(_newton, NEWTON_AT)
-        self.predict_address = address(_predict_cylindrical, PREDICT_AT)
+        self.predict_address = address(predictor, PREDICT_AT)
 
     @staticmethod
     def _effect_terms(model) -> tuple:

@@ -298,7 +298,7 @@ class Stepper:
         #: apply (scipy's sparse LU, an effect without a compiled term): then the Python loop of _attempt runs,
         #: with the same numbers to the last bit
         self._newton = (StepNewton(model, self.solver, self._axis_nodes, self._rim, self._kept,
-                                   self._kept_pose.reshape(9))
+                                   self._kept_pose.reshape(9), _predict_cylindrical)
                         if compiled and supported(model, self.solver) else None)
 
     @property
