@@ -24,6 +24,16 @@ def register(sub, view_options: bool = True) -> None:
     p.set_defaults(func=cmd_run)
 
 
+#: wall seconds of stepping between two progress updates of ``flagbot run`` (a tenth of the bar's fastest redraw)
+PROGRESS_BATCH = 0.02
+
+
+def progress_batch(sim) -> int:
+    """Steps to the next progress update: PROGRESS_BATCH of wall time at the stepping rate so far, at least 10."""
+    rate = sim.steps / sim.wall_seconds if sim.wall_seconds > 0 else 0.0
+    return max(10, int(PROGRESS_BATCH * rate))
+
+
 def cmd_run(args) -> int:
     scene = load_scene(args.scene, args.overrides)          # before the simulator's imports: a refusal is quick
     from ..physics import Simulation, StepFailed
@@ -52,7 +62,7 @@ def cmd_run(args) -> int:
             warnings.append(s.cutting_report())
             bar.note(f"warning: {warnings[0]}")
         k = s.steps - 1
-        if k % 10 == 0 or k == n_steps - 1:
+        if view is None or k % 10 == 0 or k == n_steps - 1:     # (a live view calls back every step)
             ob = s.observer
             bar.update(s.time, lambda: f"newton {s.last_stats.newton_iterations}  "
                                        f"w_h {finite_text(ob.rate_h, '+.3f')}  w_t {finite_text(ob.rate_t, '+.3f')} "
@@ -64,9 +74,10 @@ def cmd_run(args) -> int:
         if view is not None:
             view.start(sim)
             paced0 = time.perf_counter()
-        # the progress acts on every 10th step: the steps between run in one compiled call each (a live view
-        # is served every step)
-        sim.run(duration, callback=progress, every=1 if view is not None else 10)
+        # the steps between two progress updates run in one compiled call: as many as take PROGRESS_BATCH of
+        # wall time at the rate so far (the bar draws at most every 0.2 s), at least 10 (it used to update every
+        # 10th step); a live view is served every step
+        sim.run(duration, callback=progress, every=1 if view is not None else lambda: progress_batch(sim))
     except StepFailed as exc:
         error = str(exc)
     except KeyboardInterrupt:

@@ -185,32 +185,34 @@ class Simulation:
             ve.popleft()
 
     def run(self, duration: float, callback: Callable[["Simulation"], None] | None = None,
-            every: int = 1) -> None:
+            every: int | Callable[[], int] = 1) -> None:
         """Advance by ``duration`` of simulated time: whole steps of time.dt (rounded to a whole number of them),
         or error-controlled steps ending exactly at the end. ``callback`` is called after the first step, then
-        after every ``every``-th (1: each), and after the last; between its calls the steps run in batches
-        (:meth:`advance`)."""
-        every = max(1, int(every))
+        after every ``every``-th (1: each; a function: asked after each call for the steps to the next), and after
+        the last; between its calls the steps run in batches (:meth:`advance`)."""
         done = 0
+        next_call = 1                      # the step count at which the callback is called next
+
+        def called() -> None:
+            nonlocal next_call
+            callback(self)
+            next_call = done + max(1, int(every() if callable(every) else every))
 
         def batch() -> int:               # steps to the next call of the callback
-            if callback is None:
-                return 1 << 30
-            return 1 if done == 0 else every - (done - 1) % every
+            return 1 << 30 if callback is None else max(1, next_call - done)
         if self.stepper.adaptive:
             t_end = self.time + duration
             t_stop = t_end - 1e-12 * max(1.0, abs(t_end))
             while self.time < t_stop:
-                k = self.advance(batch(), t_end=t_end, t_stop=t_stop)
-                done += k
-                if callback is not None and ((k and (done - 1) % every == 0) or not self.time < t_stop):
-                    callback(self)
+                done += self.advance(batch(), t_end=t_end, t_stop=t_stop)
+                if callback is not None and (done >= next_call or not self.time < t_stop):
+                    called()
             return
         n = max(1, int(round(duration / self.dt)))
         while done < n:
             done += self.advance(min(batch(), n - done))
-            if callback is not None and ((done - 1) % every == 0 or done == n):
-                callback(self)
+            if callback is not None and (done >= next_call or done == n):
+                called()
 
     def run_until_steady(self, t_max: float, callback: Callable[["Simulation"], None] | None = None) -> bool:
         """Step until the steady-state rule holds or the simulated time reaches t_max; True if steady (in batches
