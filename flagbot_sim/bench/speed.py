@@ -5,6 +5,8 @@ normal hot path carries no instrumentation): frames (trial context: edge frames,
 velocity and acceleration), elastic (stretch and bend-twist forces/Jacobian), effects (RFT, head, inertia, ...),
 assembly (allocating and zeroing the residual and CSC data around them), linear solve (factorisation and
 solves), stepper (Newton bookkeeping, predictor, line search, commit) and observe (spin angles, speed, history).
+Where the steps run compiled (physics/newton.py: the solve, and the whole steps in batches) the phases inside
+them are not apart: "stepper" is the compiled steps' whole time, the observer's per-step work included.
 """
 from __future__ import annotations
 
@@ -52,6 +54,7 @@ def instrument(sim: Simulation) -> PhaseTimer:
     pt.wrap(st.solver, "factor", "linear solve")
     pt.wrap(st.solver, "solve", "linear solve")
     pt.wrap(st, "step", "_step_total")
+    pt.wrap(st, "advance", "_step_total")      # the compiled steps (the observer's per-step work included)
     pt.wrap(sim.observer, "record", "observe")
     return pt
 
