@@ -185,6 +185,27 @@ def _timed(root: str, argv: list[str]) -> tuple[float, float]:
     return wall, usage.ru_utime + usage.ru_stime
 
 
+def alternating_pairs(timed, here: str, against: str, argv: list[str], pairs: int) -> list[tuple]:
+    """[(old, new), ...] of ``timed(root, argv)`` with the package in ``against`` (old) and in ``here`` (new):
+    one untimed run of each first (both kernel caches warm), then ``pairs`` pairs, alternating which goes first."""
+    timed(here, argv)
+    timed(against, argv)
+    rows = []
+    for i in range(pairs):
+        order = (against, here) if i % 2 == 0 else (here, against)
+        got = {root: timed(root, argv) for root in order}
+        rows.append((got[against], got[here]))
+    return rows
+
+
+def load_line(load0: tuple[float, float, float]) -> str:
+    """The load average before (``load0``, os.getloadavg() then) and now, and the CPU count."""
+    import os
+    load1 = os.getloadavg()
+    return (f"load average (1, 5, 15 min) before {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, after "
+            f"{load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} CPUs")
+
+
 def side_by_side(against: str, pairs: int = 3, commands=SIDE_BY_SIDE) -> str:
     """Each command as a whole process with this checkout's package and with the one in ``against``, in
     alternating pairs (after one untimed run of each, so both kernel caches are warm): medians of wall and CPU
@@ -197,13 +218,7 @@ def side_by_side(against: str, pairs: int = 3, commands=SIDE_BY_SIDE) -> str:
              f"alternating; median (min..max)",
              f"{'command':28s} {'old wall s':>10s} {'new wall s':>10s} {'old/new wall':>20s} {'old/new CPU':>20s}"]
     for label, argv in commands:
-        _timed(here, argv)
-        _timed(against, argv)
-        rows = []
-        for i in range(pairs):
-            order = (against, here) if i % 2 == 0 else (here, against)
-            got = {root: _timed(root, argv) for root in order}
-            rows.append((got[against], got[here]))
+        rows = alternating_pairs(_timed, here, against, argv, pairs)
         wall = sorted(o[0] / n[0] for o, n in rows)
         cpu = sorted(o[1] / n[1] for o, n in rows)
         lines.append(f"{label:28s} {statistics.median(o[0] for o, _ in rows):10.2f} "
@@ -211,9 +226,7 @@ def side_by_side(against: str, pairs: int = 3, commands=SIDE_BY_SIDE) -> str:
                      f"{statistics.median(wall):7.2f} ({wall[0]:.2f}..{wall[-1]:.2f}) "
                      f"{statistics.median(cpu):7.2f} ({cpu[0]:.2f}..{cpu[-1]:.2f})")
         print(lines[-1], flush=True)
-    load1 = os.getloadavg()
-    lines.append(f"load average (1, 5, 15 min) before {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, after "
-                 f"{load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} CPUs")
+    lines.append(load_line(load0))
     return "\n".join(lines)
 
 

@@ -57,16 +57,16 @@ def _steady_once(scene) -> tuple[float, float, dict]:
     thread."""
     from ..physics import error_estimate, warmup
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadySolver, one_blas_thread, solve_with_coarse, summary
-    with one_blas_thread():
+    from ..physics.blas import one_thread
+    from ..physics.steady import SteadySolver, summary
+    with one_thread():
         t0 = time.perf_counter()
         sc, _ = error_estimate.resolve_accuracy(scene)
         warmup.ensure_compiled(groups=warmup.groups_for(sc, time_stepping=False))
         model = RobotModel(sc)
         solver = SteadySolver(model)
         space = error_estimate.SpaceEstimator(sc)
-        sol, coarse = solve_with_coarse(solver, space.solver, sc.omega_T)
-        space.use(coarse)
+        sol = space.solve_fine(solver, sc.omega_T)
         row = summary(model, sol)
         row.update(error_estimate.for_steady(model, sol, row, space))
         row["stability"] = solver.stability(sol).to_dict()
@@ -74,7 +74,7 @@ def _steady_once(scene) -> tuple[float, float, dict]:
         t0 = time.perf_counter()
         model = RobotModel(sc)
         space = error_estimate.SpaceEstimator(sc)
-        solve_with_coarse(SteadySolver(model), space.solver, sc.omega_T)
+        space.solve_fine(SteadySolver(model), sc.omega_T)
         return whole, time.perf_counter() - t0, row
 
 
@@ -144,6 +144,8 @@ def _timed_sweep(root: str, argv: list[str]) -> float:
 
 def sweeps_side_by_side(against: str, pairs: int, which: list[int]) -> str:
     from pathlib import Path
+
+    from .speed import alternating_pairs, load_line
     here = str(Path(__file__).resolve().parents[2])
     against = str(Path(against).resolve())
     load0 = os.getloadavg()
@@ -153,13 +155,7 @@ def sweeps_side_by_side(against: str, pairs: int, which: list[int]) -> str:
     tot_old, tot_new = [], []
     for i in which:
         label, argv = SWEEPS[i - 1]
-        _timed_sweep(here, argv)
-        _timed_sweep(against, argv)
-        rows = []
-        for k in range(pairs):
-            order = (against, here) if k % 2 == 0 else (here, against)
-            got = {root: _timed_sweep(root, argv) for root in order}
-            rows.append((got[against], got[here]))
+        rows = alternating_pairs(_timed_sweep, here, against, argv, pairs)
         ratio = sorted(o / n for o, n in rows)
         old = statistics.median(o for o, _ in rows)
         new = statistics.median(n for _, n in rows)
@@ -170,9 +166,7 @@ def sweeps_side_by_side(against: str, pairs: int, which: list[int]) -> str:
         print(lines[-1], flush=True)
     lines.append(f"{'all of them (sum of medians)':28s} {sum(tot_old):8.2f} {sum(tot_new):8.2f} "
                  f"{sum(tot_old) / sum(tot_new):7.2f}   (target: >= 2, at most half the old time)")
-    load1 = os.getloadavg()
-    lines.append(f"load average (1, 5, 15 min) before {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, after "
-                 f"{load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; {os.cpu_count()} CPUs")
+    lines.append(load_line(load0))
     return "\n".join(lines)
 
 

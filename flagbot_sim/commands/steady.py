@@ -38,8 +38,8 @@ def parse_rpm_list(text: str) -> list[float]:
 def solve_scene(scene, omega_rpm: list[float] | None = None, stability: bool = True) -> list[dict]:
     """The steady state of ``scene`` at each motor speed (rpm; default the scene's), as summary dicts. A failure
     at one speed is that entry's ``error``; the next speed starts again from the straight robot."""
-    from ..physics.steady import one_blas_thread
-    with one_blas_thread():          # small sparse problems: BLAS threads cost more than they compute
+    from ..physics.blas import one_thread
+    with one_thread():          # small sparse problems: BLAS threads cost more than they compute
         return _solve_scene(scene, omega_rpm, stability)
 
 
@@ -47,7 +47,7 @@ def _solve_scene(scene, omega_rpm: list[float] | None, stability: bool) -> list[
     from ..physics import error_estimate, warmup
     from ..physics.medium import coefficients_report
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadyFailed, SteadySolver, solve_with_coarse, summary
+    from ..physics.steady import SteadyFailed, SteadySolver, summary
     scene, accuracy = error_estimate.resolve_accuracy(scene)     # accuracy.rtol: the edge length it chooses
     compile_seconds = warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
     model = RobotModel(scene)
@@ -59,8 +59,7 @@ def _solve_scene(scene, omega_rpm: list[float] | None, stability: bool) -> list[
         w = rpm * RPM
         try:
             if prev is None:            # the space estimate's coarse solve first, the fine one started from it
-                sol, coarse = solve_with_coarse(solver, space.solver, w)
-                space.use(coarse)
+                sol = space.solve_fine(solver, w)
             else:
                 sol = solver.solve(w, start=prev)
         except SteadyFailed as exc:

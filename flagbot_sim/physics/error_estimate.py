@@ -78,6 +78,14 @@ class SpaceEstimator:
         self.solver = SteadySolver(self.model)
         self._last = None
 
+    def solve_fine(self, solver, omega_T: float):
+        """The fine equilibrium at ``omega_T`` on ``solver``'s mesh, started from this estimator's coarse one,
+        solved first (physics.steady.solve_with_coarse); estimate() continues from that coarse solution."""
+        from .steady import solve_with_coarse
+        sol, coarse = solve_with_coarse(solver, self.solver, omega_T)
+        self.use(coarse)
+        return sol
+
     def use(self, sol) -> None:
         """The coarse equilibrium at the next speed, already solved (physics.steady.solve_with_coarse): estimate()
         continues from it."""

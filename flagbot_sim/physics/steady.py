@@ -789,12 +789,6 @@ def _hermite(s: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
             + (-2 * u3 + 3 * u2) * y[k + 1] + (u3 - u2) * h[:, None] * m[k + 1])
 
 
-def one_blas_thread():
-    """Every OpenBLAS loaded in this process on one thread for the duration (:func:`.blas.one_thread`)."""
-    from .blas import one_thread
-    return one_thread()
-
-
 def solve_with_coarse(solver: SteadySolver, coarse: SteadySolver, omega_T: float
                       ) -> tuple[SteadySolution, SteadySolution | None]:
     """(fine, coarse): the equilibrium at omega_T on ``coarse``'s mesh (the same scene at twice the edge length:

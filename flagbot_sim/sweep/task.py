@@ -89,7 +89,7 @@ def run_der(scene: Scene, settings: SteadySettings) -> dict:
 def run_der_steady(scene: Scene) -> dict:
     from ..physics import error_estimate, warmup
     from ..physics.model import RobotModel
-    from ..physics.steady import SteadySolver, solve_with_coarse, summary
+    from ..physics.steady import SteadySolver, summary
 
     warmup.ensure_compiled()
     w0 = time.perf_counter()
@@ -98,8 +98,7 @@ def run_der_steady(scene: Scene) -> dict:
     solver = SteadySolver(model)
     # the space estimate's coarse solve first, the fine one started from it (a few Newton iterations)
     space = error_estimate.SpaceEstimator(scene)
-    sol, coarse = solve_with_coarse(solver, space.solver, scene.omega_T)
-    space.use(coarse)
+    sol = space.solve_fine(solver, scene.omega_T)
     s = summary(model, sol)
     s.update(error_estimate.for_steady(model, sol, s, space))
     stable = solver.stability(sol, vectors=False).stable     # the sweep records the verdict alone
