@@ -37,3 +37,15 @@ def test_no_background_compile_means_no_wait_beyond_the_grace(tmp_path):
     t0 = time.monotonic()
     wait_for_background_compile(tmp_path, appear=0.2)
     assert time.monotonic() - t0 < 60          # returns (the bound only guards against a hang, not a speed)
+
+
+def test_the_warm_start_breakdown_runs_and_names_every_phase():
+    """`flagbot bench startup --breakdown` times a warm start phase by phase in a child process (it failed with an
+    ImportError once the process's age moved from cli to cliutil, and nothing ran it)."""
+    from flagbot_sim.bench.startup import _breakdown_process
+    data, shutdown = _breakdown_process("design1", "fast")
+    marks = data["marks"]
+    for phase in ("numpy", "numba", "load_scene", "Simulation(): model set-up + kernel cache loads",
+                  "10 steps (first calls of the step kernels)"):
+        assert phase in marks and marks[phase] >= 0.0
+    assert data["age"] > 0.0 and shutdown >= 0.0

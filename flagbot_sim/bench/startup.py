@@ -35,7 +35,7 @@ t = [time.perf_counter()]
 marks = {}
 def mark(name):
     now = time.perf_counter(); marks[name] = now - t[0]; t[0] = now
-from flagbot_sim.cli import process_age;          mark("flagbot_sim.cli + scene (argparse, tomllib)")
+from flagbot_sim.cliutil import process_age;      mark("flagbot_sim.cli + scene (argparse, tomllib)")
 age = process_age() - sum(marks.values())
 import numpy;                                      mark("numpy")
 import scipy.sparse;                               mark("scipy.sparse")
