@@ -126,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     """The ``flagbot`` command. With ``argv`` None (the process's own command line: the console script,
     ``python -m flagbot_sim``) the process ends after it, and the compute-only commands exit fast."""
     from_command_line = argv is None
+    if from_command_line:
+        from .physics.blas import single_threaded_process
+        single_threaded_process()          # small matrices everywhere: BLAS threads only spin (physics/blas.py)
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _command_in(argv)
     parser = build_parser(command)

@@ -40,6 +40,8 @@ def ros_entry(module: str, prog: str, needs: str | None = None):
         if "--version" in own_arguments(sys.argv[1:]):
             print(version_text(prog))
             return 0
+        from .physics.blas import single_threaded_process
+        single_threaded_process()          # small matrices everywhere: BLAS threads only spin (physics/blas.py)
         try:
             if needs is not None:
                 importlib.import_module(needs)

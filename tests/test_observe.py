@@ -17,7 +17,7 @@ def test_history_stays_bounded_however_long_the_run():
     for t_mark in (5.0, 10.0, 20.0):
         while sim.time < t_mark - 1e-9:
             sim.step()
-        sizes.append(len(sim.observer._hist))
+        sizes.append(len(sim.observer.history))
     cap = KEEP_WINDOWS * min(SAMPLES_PER_WINDOW, round(0.5 / sim.dt)) + 3
     assert max(sizes) <= cap and max(sizes) - min(sizes) <= 1
     # and the windowed rates still come out of it: mean rate over the window = accumulated angle / window
@@ -82,3 +82,47 @@ def test_error_controlled_runs_call_steady_only_well_inside_their_tolerance():
     out = sim.summary()
     assert out["steady_rtol"] == pytest.approx(1e-5) and not out["steady"]
     assert 1e-5 < out["steady_change"] < 1e-3
+
+
+def _reference_history(samples, spacing, keep):
+    """The history rule one sample at a time, on a plain list: a sample closer than ``spacing`` to the one before
+    the newest replaces the newest; then the oldest go while the second oldest is ``keep`` older than the newest."""
+    h = []
+    for s in samples:
+        if len(h) >= 2 and s[0] - h[-2][0] < spacing:
+            h[-1] = s
+        else:
+            h.append(s)
+        while len(h) > 2 and h[1][0] <= s[0] - keep:
+            h.pop(0)
+    return np.array(h)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_history_added_in_batches_is_the_rule_applied_sample_by_sample(seed):
+    """Batches of any size (the compiled steps hand over up to hundreds of steps) give the rows the one-sample
+    rule gives, with steps shorter and longer than the spacing; interpolation between rows is linear."""
+    from flagbot_sim.physics.observe import History
+    rng = np.random.default_rng(seed)
+    spacing, keep = 0.01, 0.5
+    dts = rng.choice([0.002, 0.007, 0.01, 0.013, 0.05], size=600)
+    t = np.cumsum(dts)
+    samples = np.column_stack([t, rng.normal(size=(len(t), History.COLUMNS - 1))])
+    h = History(spacing, keep)
+    i = 0
+    while i < len(samples):
+        k = int(rng.integers(1, 120))
+        h.add(samples[i: i + k])
+        i += k
+        ref = _reference_history(samples[:i], spacing, keep)
+        assert np.array_equal(h.rows(), ref)
+    rows = h.rows()
+    assert rows[1, 0] > rows[-1, 0] - keep and len(rows) < 2 * keep / spacing + 3      # bounded
+    for q in rng.uniform(rows[0, 0], rows[-1, 0], size=50):
+        j = np.searchsorted(rows[:, 0], q, side="right") - 1
+        j = min(j, len(rows) - 2)
+        a, b = rows[j], rows[j + 1]
+        f = (q - a[0]) / (b[0] - a[0])
+        assert np.allclose(h.at(q), a + f * (b - a), rtol=0, atol=1e-12)
+    assert h.at(rows[0, 0] - 1e-6) is None and h.at(rows[-1, 0] + 1e-6) is None
+    assert np.array_equal(h.at(rows[-1, 0]), rows[-1])

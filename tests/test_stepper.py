@@ -200,9 +200,7 @@ def test_the_compiled_steps_give_the_step_by_step_numbers_to_the_last_bit(scene,
                      (sa.frames.ref_twist, sb.frames.ref_twist)):
             assert _same(x, y)
     assert _same(a.snapshot().values(), b.snapshot().values())
-    ha, hb = a.observer._hist, b.observer._hist
-    assert len(ha) == len(hb) and all(x[0] == y[0] and x[1] == y[1] and x[2] == y[2] and _same(x[3], y[3])
-                                      for x, y in zip(ha, hb))
+    assert _same(a.observer.history.rows(), b.observer.history.rows())
     assert _same([e for _, e in a._velocity_errors], [e for _, e in b._velocity_errors])
     assert _same(a.steady_detector.tails, b.steady_detector.tails) and a.steady == b.steady
     assert len(a.steady_detector.samples) >= 3

@@ -122,6 +122,96 @@ def summary_fields(scene, mass: float, rates: dict, run: dict, *, motor_torque: 
     return out
 
 
+class History:
+    """The observer's samples (t, phi_h, phi_t, position (3), clamp tip (3)), one row each, over the last ``keep``
+    seconds (at least two rows), no two but the newest closer than ``spacing`` in time: a sample that close to
+    the one before the newest replaces the newest. Rows in one array, added a batch at a time (the compiled steps
+    hand over hundreds of steps in one call): a step costs a row copy, not a Python tuple and two arrays."""
+
+    COLUMNS = 9
+
+    def __init__(self, spacing: float, keep: float):
+        self.spacing, self.keep = float(spacing), float(keep)
+        self._rows = np.empty((64, self.COLUMNS))
+        self._lo = self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def rows(self) -> np.ndarray:
+        """The samples held, oldest first (a view: not to be written)."""
+        return self._rows[self._lo: self._lo + self._n]
+
+    @property
+    def t_now(self) -> float:
+        return float(self._rows[self._lo + self._n - 1, 0])
+
+    @property
+    def t_first(self) -> float:
+        return float(self._rows[self._lo, 0])
+
+    def add(self, samples: np.ndarray) -> None:
+        """Add rows of samples in time order (the rule above, one sample after the other), then drop the oldest
+        rows while the second oldest is at least ``keep`` older than the newest."""
+        n = self._n
+        h = self._rows[self._lo: self._lo + n, 0]
+        t2 = float(h[-2]) if n >= 2 else 0.0            # the time of the row before the newest
+        t1 = float(h[-1]) if n >= 1 else 0.0            # and of the newest
+        slots = []
+        spacing = self.spacing
+        for t in samples[:, 0].tolist():
+            if n >= 2 and t - t2 < spacing:
+                slots.append(n - 1)                       # replaces the newest
+            else:
+                slots.append(n)
+                n += 1
+                t2 = t1
+            t1 = t
+        slot = np.asarray(slots)
+        last = np.ones(len(slots), bool)                  # of the samples for one slot, the last is kept
+        last[:-1] = slot[1:] != slot[:-1]
+        self._room(n)
+        self._rows[self._lo + slot[last]] = samples[last]
+        self._n = n
+        T = self._rows[self._lo: self._lo + n, 0]
+        drop = min(n - 2, int(np.searchsorted(T, T[-1] - self.keep, side="right")) - 1)
+        if drop > 0:
+            self._lo += drop
+            self._n -= drop
+
+    def _room(self, n: int) -> None:
+        """Room for n rows from self._lo: the live rows moved to the front, or a larger array."""
+        if self._lo + n <= len(self._rows):
+            return
+        live = self._rows[self._lo: self._lo + self._n]
+        if n > len(self._rows) // 2:
+            grown = np.empty((2 * max(n, len(self._rows)), self.COLUMNS))
+            grown[: self._n] = live
+            self._rows = grown
+        else:
+            self._rows[: self._n] = live.copy()
+        self._lo = 0
+
+    def at(self, t: float) -> np.ndarray | None:
+        """The row at time t by linear interpolation between the two samples around it (the first or last
+        sample at the ends); None outside the history (beyond 1e-12 s)."""
+        h = self.rows()
+        T = h[:, 0]
+        if t < T[0] - 1e-12 or t > T[-1] + 1e-12:
+            return None
+        lo = min(max(int(np.searchsorted(T, t, side="right")) - 1, 0), len(T) - 2) if len(T) > 1 else 0
+        a = h[lo]
+        if len(T) == 1:
+            return a.copy()
+        b = h[lo + 1]
+        if b[0] <= a[0] or t <= a[0]:
+            return a.copy()
+        if t >= b[0]:
+            return b.copy()
+        f = (t - a[0]) / (b[0] - a[0])
+        return a + f * (b - a)
+
+
 class Observer:
     """Accumulates spin angles step by step; answers instantaneous and windowed rates over a bounded history."""
 
@@ -142,8 +232,7 @@ class Observer:
         self.speed = 0.0
         self.axis_now = self.axis(state)
         self._pos = self.position(state).copy()
-        self._hist: deque = deque()
-        self._spacing = self.window / SAMPLES_PER_WINDOW
+        self.history = History(self.window / SAMPLES_PER_WINDOW, KEEP_WINDOWS * self.window)
         self._append(state.t)
 
     # ---------------------------------------------------------------- geometry of one state
@@ -211,51 +300,30 @@ class Observer:
     def recorded(self, rows: np.ndarray) -> None:
         """What :meth:`record` leaves behind, for steps the compiled steps took (stepper.Stepper.advance: one row
         per step, t, -, -, phi_h, phi_t, position, ...; the instantaneous rates already set). Not clamped."""
-        for r in rows:
-            self._add((float(r[0]), float(r[3]), float(r[4]), r[5:8].copy(), np.zeros(3)))
+        samples = np.zeros((rows.shape[0], History.COLUMNS))
+        samples[:, 0] = rows[:, 0]
+        samples[:, 1:6] = rows[:, 3:8]
+        self.history.add(samples)
 
     def _append(self, t: float, state: State | None = None) -> None:
-        tip = self.corotating_tip(state) if (self.clamped and state is not None) else np.zeros(3)
-        self._add((t, self.phi_h, self.phi_t, self._pos.copy(), tip))
-
-    def _add(self, sample: tuple) -> None:
-        t = sample[0]
-        h = self._hist
-        if len(h) >= 2 and t - h[-2][0] < self._spacing:
-            h[-1] = sample              # too close to the sample before: the newest state replaces the last one
-        else:
-            h.append(sample)
-        horizon = t - KEEP_WINDOWS * self.window
-        while len(h) > 2 and h[1][0] <= horizon:
-            h.popleft()
+        sample = np.zeros((1, History.COLUMNS))
+        sample[0, :6] = t, self.phi_h, self.phi_t, *self._pos
+        if self.clamped and state is not None:
+            sample[0, 6:] = self.corotating_tip(state)
+        self.history.add(sample)
 
     @property
     def t_now(self) -> float:
-        return self._hist[-1][0]
+        return self.history.t_now
 
     @property
     def t_first(self) -> float:
-        return self._hist[0][0]
+        return self.history.t_first
 
     def _at(self, t: float):
         """(phi_h, phi_t, position, tip) at time t by linear interpolation in the history (None if outside)."""
-        h = self._hist
-        if t < h[0][0] - 1e-12 or t > h[-1][0] + 1e-12:
-            return None
-        lo, hi = 0, len(h) - 1
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if h[mid][0] <= t:
-                lo = mid
-            else:
-                hi = mid
-        a, b = h[lo], h[hi]
-        if b[0] <= a[0] or t <= a[0]:
-            return a[1:]
-        if t >= b[0]:
-            return b[1:]
-        f = (t - a[0]) / (b[0] - a[0])
-        return tuple(x + f * (y - x) for x, y in zip(a[1:], b[1:]))
+        row = self.history.at(t)
+        return None if row is None else (float(row[1]), float(row[2]), row[3:6], row[6:9])
 
     # ---------------------------------------------------------------- windows
     def window_rates(self, window: float, end_time: float | None = None) -> dict | None:
