@@ -44,8 +44,8 @@ KERNELS = (
     ("elastic", "_bend_twist", "- f2 f1 f2 f2 f1 f2 f2 f1 i2 i2 f2 f1 f2 f1 f1 f1 i2 i2 i f f2 f2 f1 f1 b"),
     ("effects", "rft", "- f2 f1 f i1 i1 i1 f1 f f i2 f1 f1 i3 i3 i3 b"),
     ("elastic", "tangent_torque", "- f2 f2 f1 i f f i1 f1 f1 i1 i1 b"),
-    ("linsolve", "_arrow_factor", "i f1 i1 f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 n1"),
-    ("linsolve", "_arrow_solve", "- f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 f1 f1 n1"),
+    ("linsolve", "_arrow_factor", "i f1 i1 f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 n1 i1"),
+    ("linsolve", "_arrow_solve", "- f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 f1 f1 n1 i1"),
 )
 FRAMES, STRETCH, BEND_TWIST, RFT_FORCE, TANGENT_TORQUE, FACTOR, SOLVE = range(len(KERNELS))
 _trial_frames_at, _stretch_at, _bend_twist_at, _rft_at, _tangent_torque_at, _factor_at, _solve_at = (
@@ -250,7 +250,7 @@ def robot_pose(q, i0, i2, rim, P):
 @stage
 def _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, x, buf, ab_off, ab_rows, ab_cols, kl, ku, C_off,
                    cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs, rhs,
-                   z, iw):
+                   z, iw, ext):
     """x = R J_then^-1 (R^T r) with the kept factorisation, R the turn from its pose (``kept_pose``, 3x3 row-major)
     to q's (Stepper._rotated_solve)."""
     robot_pose(q, i0, i2, rim, P)
@@ -266,7 +266,7 @@ def _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, x, buf, ab_off, a
         for j in range(3):
             b[3 * m + j] = r0 * R[j] + r1 * R[3 + j] + r2 * R[6 + j]
     _solve_at(fns[SOLVE])(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv,
-                          piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw)
+                          piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw, ext)
     for m in range(N):
         x0, x1, x2 = x[3 * m], x[3 * m + 1], x[3 * m + 2]
         for j in range(3):
@@ -284,7 +284,7 @@ def _all_finite(x):
 #: the signature of _newton as StepNewton.solve calls it (compiled from it by physics.warmup, with no model built)
 _EL = "(f1 f1 i2 i2 i2 f1 f2 f1 f1 f1 i2 i2 f2 f2)"
 _EF = "(f1 i1 f1 i1 i1 i1 f1 f1 i2 i3 i3 i3 i1 f i1 f i i i1 i i1 i1 f f i2 i1)"
-_SOL = "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1)"
+_SOL = "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1 i1)"
 NEWTON_SIGNATURE = f"- i1 f1 i f f1 f f1 f i i1 (i2 i2 f2) (f2 f2 f1) {_EL} {_EF} i1 i1 i1 f1 f i {_SOL} i1 i1 f1 f1 f1"
 #: the signature of _advance as StepNewton.advance calls it
 ADVANCE_SIGNATURE = (f"i i1 i i i i i1 (i2 i2 f2) {_EL} {_EF} i1 i1 i1 f1 {_SOL} i1 i1 f1 f1 f1 i1 f1 "
@@ -317,7 +317,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
     (mass, in_slots, grav, rk, ra, rb, rl, eta, rdofs, skk, ska, skb, hd_dofs, hd_w, hd_slots, ht_c, ht_edge,
      ht_dof, ht_x, ht_s0, ht_s1, ht_s2, gy_f, gy_eps2, gy_dofs, gy_slots) = ef
     (buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off,
-     core_piv, chain_dofs, core_dofs, rhs, z, iw) = sol
+     core_piv, chain_dofs, core_dofs, rhs, z, iw, ext) = sol
     i0, i2, rim = axis[0], axis[1], axis[2]
     n = q0.shape[0]
     ne, nh = edges.shape[0], hinge_edges.shape[0]
@@ -425,7 +425,8 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
                 stats[2] += 1.0
                 kept[0] = 0.0
                 if _factor_at(fns[FACTOR])(J, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc,
-                                           cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw) != 0:
+                                           cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw,
+                                           ext) != 0:
                     done = -1
                     break
                 kept[0] = 1.0
@@ -435,7 +436,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
             next_ = _LINE
         _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, dx, buf, ab_off, ab_rows, ab_cols, kl, ku, C_off,
                        cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs,
-                       rhs, z, iw)
+                       rhs, z, iw, ext)
         for i in range(n):
             dq[i] = -dx[i]
             q_t[i] = q[i] + dq[i]
@@ -761,7 +762,7 @@ class StepNewton:
         self.sol = (solver._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], solver._B_off,
                     k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], np.int64(k["D_off"]), np.int64(k["nc"]),
                     solver._ipiv, solver._piv_ptr, solver._Y, solver._Y_off, solver._core_piv, solver._chain_dofs,
-                    solver._core, solver._rhs, solver._z, solver._iw)
+                    solver._core, solver._rhs, solver._z, solver._iw, solver._ext)
         self.dest = solver.dest
         i0, _, i2 = axis_nodes
         self.axis = np.array([i0, i2, rim], np.int64)
