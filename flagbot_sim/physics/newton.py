@@ -94,10 +94,10 @@ REUSE_DV_CHANGE = 0.15
 def _trial(fns, q, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_edges, sign, d1c, tc, ref_prev, t,
            length, d1, d2, rt, v, a, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, W,
            mass, grav, rk, ra, rb, rl, eta_t, eta_p, rdofs, skk, ska, skb, hd_dofs, hd_w, ht_c, ht_edge, ht_dof,
-           ht_x, gy_f, gy_eps2, gy_dofs, fixed, r):
+           ht_x, gy_f, gy_eps2, gy_dofs, fixed, r, e0, ne):
     """The trial configuration q: its frames (t, length, d1, d2, rt), velocity v and acceleration a from the plan,
     and the model's residual r there (each listed effect in the scene's order, then the springs), prescribed rows
-    zeroed."""
+    zeroed. ``e0``, ``ne``: empty float and int arrays (no Jacobian)."""
     x = q[: 3 * N].reshape((N, 3))
     _trial_frames_at(fns[FRAMES])(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt)
     n = q.shape[0]
@@ -105,8 +105,6 @@ def _trial(fns, q, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_ed
         v[i] = dv * q[i] + v0[i]
         a[i] = da * q[i] + a0[i]
         r[i] = 0.0
-    e0 = np.empty(0)
-    ne = np.empty(0, np.int64)
     for code in order:
         if code == INERTIA:
             for i in range(n):
@@ -250,11 +248,10 @@ def robot_pose(q, i0, i2, rim, P):
 @stage
 def _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, x, buf, ab_off, ab_rows, ab_cols, kl, ku, C_off,
                    cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs, rhs,
-                   z, iw, ext):
+                   z, iw, ext, R):
     """x = R J_then^-1 (R^T r) with the kept factorisation, R the turn from its pose (``kept_pose``, 3x3 row-major)
-    to q's (Stepper._rotated_solve)."""
+    to q's (Stepper._rotated_solve; ``R``: 9 entries of work space)."""
     robot_pose(q, i0, i2, rim, P)
-    R = np.empty(9)
     for i in range(3):
         for j in range(3):
             R[3 * i + j] = P[3 * i] * kept_pose[3 * j] + P[3 * i + 1] * kept_pose[3 * j + 1] + \
@@ -321,16 +318,28 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
     i0, i2, rim = axis[0], axis[1], axis[2]
     n = q0.shape[0]
     ne, nh = edges.shape[0], hinge_edges.shape[0]
-    # the iterate and the trial, each with its frames, velocity, acceleration and residual
-    q, t, length, d1, d2, rt = np.empty(n), np.empty((ne, 3)), np.empty(ne), np.empty((ne, 3)), np.empty((ne, 3)), \
-        np.empty(nh)
-    v, a, r = np.empty(n), np.empty(n), np.empty(n)
-    q_t, t_t, length_t, d1_t, d2_t, rt_t = q0, np.empty((ne, 3)), np.empty(ne), np.empty((ne, 3)), \
-        np.empty((ne, 3)), np.empty(nh)
-    v_t, a_t, r_t = np.empty(n), np.empty(n), np.empty(n)
-    dq, dx, b = np.empty(n), np.empty(n), np.empty(n)
-    J = np.empty(dest.shape[0])
-    P = np.empty(9)
+    # the iterate and the trial, each with its frames, velocity, acceleration and residual, and the work arrays:
+    # views of one allocation (the arrays returned are views of it too)
+    ws = np.empty(10 * n + 20 * ne + 2 * nh + dest.shape[0] + 18)
+    q, v, a, r = ws[:n], ws[n: 2 * n], ws[2 * n: 3 * n], ws[3 * n: 4 * n]
+    v_t, a_t, r_t = ws[4 * n: 5 * n], ws[5 * n: 6 * n], ws[6 * n: 7 * n]
+    dq, dx, b = ws[7 * n: 8 * n], ws[8 * n: 9 * n], ws[9 * n: 10 * n]
+    o = 10 * n
+    t, d1, d2 = (ws[o: o + 3 * ne].reshape((ne, 3)), ws[o + 3 * ne: o + 6 * ne].reshape((ne, 3)),
+                 ws[o + 6 * ne: o + 9 * ne].reshape((ne, 3)))
+    o += 9 * ne
+    t_t, d1_t, d2_t = (ws[o: o + 3 * ne].reshape((ne, 3)), ws[o + 3 * ne: o + 6 * ne].reshape((ne, 3)),
+                       ws[o + 6 * ne: o + 9 * ne].reshape((ne, 3)))
+    o += 9 * ne
+    length, length_t, rt, rt_t = ws[o: o + ne], ws[o + ne: o + 2 * ne], ws[o + 2 * ne: o + 2 * ne + nh], \
+        ws[o + 2 * ne + nh: o + 2 * ne + 2 * nh]
+    o += 2 * ne + 2 * nh
+    J = ws[o: o + dest.shape[0]]
+    o += dest.shape[0]
+    P, R = ws[o: o + 9], ws[o + 9: o + 18]
+    q_t = q0
+    e0 = ws[:0]
+    ne0 = np.empty(0, np.int64)
     fresh = False                # the factorisation in hand was made at an iterate of this solve
     chord = kept[0] > 0.0 and abs(dv / kept[1] - 1.0) < REUSE_DV_CHANGE    # or, usable as it is, at an earlier one
     merit_start = -1.0
@@ -343,7 +352,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
         _trial(fns, q_t, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_edges, sign, d1c, tc, ref_prev,
                t_t, length_t, d1_t, d2_t, rt_t, v_t, a_t, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt,
                hdofs, hslots, S, W, mass, grav, rk, ra, rb, rl, eta[0], eta[1], rdofs, skk, ska, skb, hd_dofs, hd_w,
-               ht_c, ht_edge, ht_dof, ht_x, gy_f, gy_eps2, gy_dofs, fixed, r_t)
+               ht_c, ht_edge, ht_dof, ht_x, gy_f, gy_eps2, gy_dofs, fixed, r_t, e0, ne0)
         m_max, m = _norms(r_t, scale)
         take = False                 # the trial becomes the iterate
         newton = False               # a Newton correction (fresh Jacobian, line search) comes next
@@ -436,7 +445,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
             next_ = _LINE
         _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, dx, buf, ab_off, ab_rows, ab_cols, kl, ku, C_off,
                        cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs,
-                       rhs, z, iw, ext)
+                       rhs, z, iw, ext, R)
         for i in range(n):
             dq[i] = -dx[i]
             q_t[i] = q[i] + dq[i]
@@ -562,7 +571,7 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
             for j in range(4):
                 stats[j] = 0.0
             ok, its, qn, vn, fr = _newton_at(nfn)(
-                fns, qt.copy(), N, dv, v0, da, a0, angle, twist_hinge, codes, net, (D1[0], T[0], RT[0]), el, ef,
+                fns, qt, N, dv, v0, da, a0, angle, twist_hinge, codes, net, (D1[0], T[0], RT[0]), el, ef,
                 fixed, fix_slots, fix_diag, scale, tol, max_it, sol, dest, axis, kept, kept_pose, stats)
             cuts += stats[1]
             jacs += stats[2]
