@@ -156,9 +156,8 @@ class Gravity(Effect):
 def _rft_py(x, v, dv_dx, k, a, b, vor, eta_t, eta_p, dofs, r, J, s_kk, s_ka, s_kb, want_jacobian):
     """F_k = -l_k [eta_t (v.t) t + eta_p (v - (v.t) t)] into r (residual: -F); -dF/dx into J."""
     de = eta_t - eta_p
-    w = np.empty(6)               # (one allocation per call: a time step makes two or three)
-    tv = w[:3]
-    vv = w[3:]
+    tv = np.empty(3)
+    vv = np.empty(3)
     for n in range(k.shape[0]):
         kk, aa, bb = k[n], a[n], b[n]
         for i in range(3):

@@ -502,18 +502,12 @@ def _bend_twist(x, theta, t, tc, length, d1, d2, rt, nodes, edges, sign, beta, k
     what ElasticModel.hinge_strains reads), W (H, 3) its moments (_hinge_weights: ElasticModel.hinge_moments),
     r, J."""
     H, Ne = nodes.shape[0], t.shape[0]
-    nH = H if want_hessian else 0
-    nh = Ne if want_hessian else 0
-    w = np.empty(65 * H + 121 * nH + 3 * Ne + 9 * nh)     # the stages' arrays below: one allocation per call
-    V = w[: 21 * H].reshape((H, 21))
-    G = w[21 * H: 54 * H].reshape((H, 33))
-    grad = w[54 * H: 65 * H].reshape((H, 11))
-    o = 65 * H
-    Hs = w[o: o + 121 * nH].reshape((nH, 121))
-    o += 121 * nH
-    hg = w[o: o + 3 * Ne].reshape((Ne, 3))
-    o += 3 * Ne
-    hh = w[o: o + 9 * nh].reshape((nh, 9))
+    V = np.empty((H, 21))
+    G = np.empty((H, 33))
+    grad = np.empty((H, 11))
+    Hs = np.empty((H, 121)) if want_hessian else np.empty((0, 121))
+    hg = np.empty((Ne, 3))
+    hh = np.empty((Ne, 9)) if want_hessian else np.empty((0, 9))
     _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S)
     _hinge_weights(S, kappa_bar, tau_bar, twist_hinge, twist_offset, k_bend, k_twist, W)
     _strain_gradients(V, S, G)

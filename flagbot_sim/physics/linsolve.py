@@ -11,8 +11,7 @@
 
   so the cost grows linearly with the number of nodes. The factorisation and the solves run as one compiled
   call each, calling LAPACK (scipy's own, through ``scipy.linalg.cython_lapack``) for every LU: the only LU
-  factorisation in the package is LAPACK's. The banded solves with those factors are loops here (dgbtrs's
-  algorithm, reading only the nonzero part of U's band).
+  implementation in the package is LAPACK's.
 * :class:`SparseLU` is scipy's SuperLU (COLAMD ordering): general, used when a network has no arrow structure.
 
 Both take the CSC data array assembled on :class:`~flagbot_sim.physics.assembly.SparsePattern`; the arrow solver
@@ -50,11 +49,12 @@ def _lapack(name: str, nargs: int):
 
 
 _dgbtrf = _lapack("dgbtrf", 8)     # m n kl ku ab ldab ipiv info
+_dgbtrs = _lapack("dgbtrs", 11)    # trans n kl ku nrhs ab ldab ipiv b ldb info
 _dgetrf = _lapack("dgetrf", 6)     # m n a lda ipiv info
 _dgetrs = _lapack("dgetrs", 9)     # trans n nrhs a lda ipiv b ldb info
 
 #: LAPACK's integer arguments live in a work array of int32 (``iw``, 8 entries, 4 bytes apart): byte offsets
-I0, I1, I2, I3, I4, INFO, TRANS = 0, 4, 8, 12, 16, 20, 28
+I0, I1, I2, I3, I4, INFO, I6, TRANS = 0, 4, 8, 12, 16, 20, 24, 28
 
 
 @stage
@@ -75,60 +75,20 @@ def _band_factor(buf, off, ldab, m, kl, ku, ipiv, piv_off, iw):
 
 
 @stage
-def _band_solve(buf, off, ldab, m, kl, ku, ipiv, piv_off, rhs, rhs_off, nrhs, ext):
-    """Overwrite the Fortran-ordered (m, nrhs) block rhs[rhs_off:] with A^-1 rhs, A's LU from dgbtrf (band
-    storage, pivots): LAPACK's dgbtrs, step for step (L's row interchanges and multipliers column by column,
-    then U's back substitution), as loops here, where U's column j is read only as far up as its farthest
-    nonzero (``ext[piv_off + j]`` superdiagonals, :func:`_u_extents`): the row interchanges fill U's band to
-    kl + ku superdiagonals in some columns only (the chains' Jacobians: ~11 of 20 on average), and a product
-    with an exact zero changes nothing. (Through LAPACK, with its BLAS calls per column, over the whole band,
-    a solve took 1.25x as long.)"""
-    kd = kl + ku                  # the diagonal's row in the band (0-based)
-    for c in range(nrhs):
-        r0 = rhs_off + c * m
-        if kl > 0:
-            for j in range(m - 1):
-                lm = min(kl, m - 1 - j)
-                p = ipiv[piv_off + j] - 1
-                if p != j:
-                    tmp = rhs[r0 + p]
-                    rhs[r0 + p] = rhs[r0 + j]
-                    rhs[r0 + j] = tmp
-                bj = rhs[r0 + j]
-                col = off + j * ldab + kd
-                for i in range(1, lm + 1):
-                    rhs[r0 + j + i] -= buf[col + i] * bj
-        for j in range(m - 1, -1, -1):
-            xj = rhs[r0 + j]
-            if xj != 0.0:
-                xj /= buf[off + j * ldab + kd]
-                rhs[r0 + j] = xj
-                col = off + j * ldab + kd - j            # row i of column j is at col + i
-                for i in range(j - 1, j - ext[piv_off + j] - 1, -1):
-                    rhs[r0 + i] -= xj * buf[col + i]
-
-
-@stage
-def _u_extents(buf, off, ldab, m, kl, ku, ext, piv_off):
-    """ext[piv_off + j] = how far above the diagonal U's column j has a nonzero (dgbtrf's band: its farthest
-    nonzero superdiagonal, 0 for none; at most j)."""
-    kd = kl + ku
-    for j in range(m):
-        e = 0
-        col = off + j * ldab + kd
-        for d in range(min(j, kd), 0, -1):
-            if buf[col - d] != 0.0:
-                e = d
-                break
-        ext[piv_off + j] = e
+def _band_solve(buf, off, ldab, m, kl, ku, ipiv, piv_off, rhs, rhs_off, nrhs, iw):
+    """dgbtrs: overwrite the Fortran-ordered (m, nrhs) block rhs[rhs_off:] with A^-1 rhs."""
+    iw[0], iw[1], iw[2], iw[3], iw[4], iw[6] = m, kl, ku, nrhs, ldab, m
+    iw[7] = 78                    # "N" (the first byte of the int32)
+    w = _address(iw)
+    _dgbtrs(w + TRANS, w + I0, w + I1, w + I2, w + I3, _address(buf) + 8 * off, w + I4,
+            _address(ipiv) + 4 * piv_off, _address(rhs) + 8 * rhs_off, w + I6, w + INFO)
 
 
 @kernel
 def _arrow_factor(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc, cr_ptr, cr, D_off,
-                  nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw, ext):
+                  nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw):
     """Factor every chain block, form Y_i = A_i^-1 B_i, the Schur complement S = D - sum C_i Y_i and its LU
-    (``iw``: LAPACK's int32 work array, 8 entries; ``ext``: each chain column's U extent, set here, then each
-    chain's C_i column extent, ArrowSolver's).
+    (``iw``: LAPACK's int32 work array, 8 entries).
 
     Returns 0, i + 1 if chain block i is singular, or -1 if the Schur complement is."""
     for s in range(buf.shape[0]):
@@ -140,22 +100,20 @@ def _arrow_factor(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_of
         p0 = piv_ptr[i]
         if _band_factor(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, iw) != 0:
             return i + 1
-        _u_extents(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ext, p0)
         ncc = cc_ptr[i + 1] - cc_ptr[i]
         ncr = cr_ptr[i + 1] - cr_ptr[i]
         y0 = Y_off[i]
         for s in range(m * ncc):                                            # B_i, Fortran (m, ncc)
             Y[y0 + s] = buf[B_off[i] + s]
         if ncc:
-            _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, Y, y0, ncc, ext)
+            _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, Y, y0, ncc, iw)
         c0 = C_off[i]
-        ce = ext[piv_ptr[-1] + i]                 # C_i's columns beyond ce are zero
         for a in range(ncr):
             row = cr[cr_ptr[i] + a]
             for k in range(ncc):
                 col = cc[cc_ptr[i] + k]
                 acc = 0.0
-                for rr in range(ce):
+                for rr in range(m):
                     acc += buf[c0 + a * m + rr] * Y[y0 + k * m + rr]
                 buf[D_off + row * nc + col] -= acc
     # S is stored row-major, which LAPACK reads as S^T: factor S^T, solve with 'T'
@@ -169,9 +127,9 @@ def _arrow_factor(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_of
 
 @kernel
 def _arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr,
-                 Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw, ext):
+                 Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw):
     """Solve J x = b with the factors of :func:`_arrow_factor` (``rhs`` (nc), ``z`` (chain DOFs), ``iw`` (8
-    int32): work arrays; ``ext``: the extents :func:`_arrow_factor` uses)."""
+    int32): work arrays)."""
     one = np.int64(1)             # one right-hand side (a literal 1 would compile _band_solve a second time)
     for k in range(nc):
         rhs[k] = b[core_dofs[k]]
@@ -180,12 +138,11 @@ def _arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_pt
         z0 = piv_ptr[i]
         for k in range(m):
             z[z0 + k] = b[chain_dofs[z0 + k]]
-        _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, z0, z, z0, one, ext)
+        _band_solve(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, z0, z, z0, one, iw)
         c0 = C_off[i]
-        ce = ext[piv_ptr[-1] + i]
         for a in range(cr_ptr[i + 1] - cr_ptr[i]):
             acc = 0.0
-            for rr in range(ce):
+            for rr in range(m):
                 acc += buf[c0 + a * m + rr] * z[z0 + rr]
             rhs[cr[cr_ptr[i] + a]] -= acc
     iw[0], iw[1], iw[2], iw[3] = nc, 1, nc, nc
@@ -304,11 +261,6 @@ class ArrowSolver:
         self._Y = np.zeros(self._Y_off[-1])
         self._core_piv = np.zeros(nc, np.int32)
         self._iw = np.zeros(8, np.int32)            # LAPACK's integer arguments
-        # each chain column's U extent (the factorisation sets them), then each chain's C_i column extent: the
-        # first chain position past its last entry (the flagellum's base couples to the core, the rest does not)
-        c_ext = [int(c_pos[(ro < 0) & (co == i)].max()) + 1 if np.any((ro < 0) & (co == i)) else 0
-                 for i in range(len(chains))]
-        self._ext = np.concatenate([np.zeros(self._piv_ptr[-1], np.int64), np.array(c_ext, np.int64)])
         self._rhs = np.empty(nc)                    # solve's work arrays
         self._z = np.empty(len(self._chain_dofs))
 
@@ -316,7 +268,7 @@ class ArrowSolver:
         k = self._k
         bad = _arrow_factor(data, self.dest, self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"],
                             self._B_off, k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"],
-                            self._ipiv, self._piv_ptr, self._Y, self._Y_off, self._core_piv, self._iw, self._ext)
+                            self._ipiv, self._piv_ptr, self._Y, self._Y_off, self._core_piv, self._iw)
         if bad > 0:
             raise SingularJacobian(f"flagellum block {bad - 1} is singular")
         if bad < 0:
@@ -328,7 +280,7 @@ class ArrowSolver:
         _arrow_solve(self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
                      k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"], self._ipiv, self._piv_ptr, self._Y,
                      self._Y_off, self._core_piv, self._chain_dofs, self._core, np.ascontiguousarray(b), x,
-                     self._rhs, self._z, self._iw, self._ext)
+                     self._rhs, self._z, self._iw)
         return x
 
 

@@ -44,8 +44,8 @@ KERNELS = (
     ("elastic", "_bend_twist", "- f2 f1 f2 f2 f1 f2 f2 f1 i2 i2 f2 f1 f2 f1 f1 f1 i2 i2 i f f2 f2 f1 f1 b"),
     ("effects", "rft", "- f2 f1 f i1 i1 i1 f1 f f i2 f1 f1 i3 i3 i3 b"),
     ("elastic", "tangent_torque", "- f2 f2 f1 i f f i1 f1 f1 i1 i1 b"),
-    ("linsolve", "_arrow_factor", "i f1 i1 f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 n1 i1"),
-    ("linsolve", "_arrow_solve", "- f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 f1 f1 n1 i1"),
+    ("linsolve", "_arrow_factor", "i f1 i1 f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 n1"),
+    ("linsolve", "_arrow_solve", "- f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 f1 f1 n1"),
 )
 FRAMES, STRETCH, BEND_TWIST, RFT_FORCE, TANGENT_TORQUE, FACTOR, SOLVE = range(len(KERNELS))
 _trial_frames_at, _stretch_at, _bend_twist_at, _rft_at, _tangent_torque_at, _factor_at, _solve_at = (
@@ -94,10 +94,10 @@ REUSE_DV_CHANGE = 0.15
 def _trial(fns, q, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_edges, sign, d1c, tc, ref_prev, t,
            length, d1, d2, rt, v, a, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt, hdofs, hslots, S, W,
            mass, grav, rk, ra, rb, rl, eta_t, eta_p, rdofs, skk, ska, skb, hd_dofs, hd_w, ht_c, ht_edge, ht_dof,
-           ht_x, gy_f, gy_eps2, gy_dofs, fixed, r, e0, ne):
+           ht_x, gy_f, gy_eps2, gy_dofs, fixed, r):
     """The trial configuration q: its frames (t, length, d1, d2, rt), velocity v and acceleration a from the plan,
     and the model's residual r there (each listed effect in the scene's order, then the springs), prescribed rows
-    zeroed. ``e0``, ``ne``: empty float and int arrays (no Jacobian)."""
+    zeroed."""
     x = q[: 3 * N].reshape((N, 3))
     _trial_frames_at(fns[FRAMES])(x, edges, d1c, tc, hinge_edges, sign, ref_prev, t, length, d1, d2, rt)
     n = q.shape[0]
@@ -105,6 +105,8 @@ def _trial(fns, q, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_ed
         v[i] = dv * q[i] + v0[i]
         a[i] = da * q[i] + a0[i]
         r[i] = 0.0
+    e0 = np.empty(0)
+    ne = np.empty(0, np.int64)
     for code in order:
         if code == INERTIA:
             for i in range(n):
@@ -248,10 +250,11 @@ def robot_pose(q, i0, i2, rim, P):
 @stage
 def _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, x, buf, ab_off, ab_rows, ab_cols, kl, ku, C_off,
                    cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs, rhs,
-                   z, iw, ext, R):
+                   z, iw):
     """x = R J_then^-1 (R^T r) with the kept factorisation, R the turn from its pose (``kept_pose``, 3x3 row-major)
-    to q's (Stepper._rotated_solve; ``R``: 9 entries of work space)."""
+    to q's (Stepper._rotated_solve)."""
     robot_pose(q, i0, i2, rim, P)
+    R = np.empty(9)
     for i in range(3):
         for j in range(3):
             R[3 * i + j] = P[3 * i] * kept_pose[3 * j] + P[3 * i + 1] * kept_pose[3 * j + 1] + \
@@ -263,7 +266,7 @@ def _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, x, buf, ab_off, a
         for j in range(3):
             b[3 * m + j] = r0 * R[j] + r1 * R[3 + j] + r2 * R[6 + j]
     _solve_at(fns[SOLVE])(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv,
-                          piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw, ext)
+                          piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw)
     for m in range(N):
         x0, x1, x2 = x[3 * m], x[3 * m + 1], x[3 * m + 2]
         for j in range(3):
@@ -281,7 +284,7 @@ def _all_finite(x):
 #: the signature of _newton as StepNewton.solve calls it (compiled from it by physics.warmup, with no model built)
 _EL = "(f1 f1 i2 i2 i2 f1 f2 f1 f1 f1 i2 i2 f2 f2)"
 _EF = "(f1 i1 f1 i1 i1 i1 f1 f1 i2 i3 i3 i3 i1 f i1 f i i i1 i i1 i1 f f i2 i1)"
-_SOL = "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1 i1)"
+_SOL = "(f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 n1)"
 NEWTON_SIGNATURE = f"- i1 f1 i f f1 f f1 f i i1 (i2 i2 f2) (f2 f2 f1) {_EL} {_EF} i1 i1 i1 f1 f i {_SOL} i1 i1 f1 f1 f1"
 #: the signature of _advance as StepNewton.advance calls it
 ADVANCE_SIGNATURE = (f"i i1 i i i i i1 (i2 i2 f2) {_EL} {_EF} i1 i1 i1 f1 {_SOL} i1 i1 f1 f1 f1 i1 f1 "
@@ -314,32 +317,20 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
     (mass, in_slots, grav, rk, ra, rb, rl, eta, rdofs, skk, ska, skb, hd_dofs, hd_w, hd_slots, ht_c, ht_edge,
      ht_dof, ht_x, ht_s0, ht_s1, ht_s2, gy_f, gy_eps2, gy_dofs, gy_slots) = ef
     (buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off,
-     core_piv, chain_dofs, core_dofs, rhs, z, iw, ext) = sol
+     core_piv, chain_dofs, core_dofs, rhs, z, iw) = sol
     i0, i2, rim = axis[0], axis[1], axis[2]
     n = q0.shape[0]
     ne, nh = edges.shape[0], hinge_edges.shape[0]
-    # the iterate and the trial, each with its frames, velocity, acceleration and residual, and the work arrays:
-    # views of one allocation (the arrays returned are views of it too)
-    ws = np.empty(10 * n + 20 * ne + 2 * nh + dest.shape[0] + 18)
-    q, v, a, r = ws[:n], ws[n: 2 * n], ws[2 * n: 3 * n], ws[3 * n: 4 * n]
-    v_t, a_t, r_t = ws[4 * n: 5 * n], ws[5 * n: 6 * n], ws[6 * n: 7 * n]
-    dq, dx, b = ws[7 * n: 8 * n], ws[8 * n: 9 * n], ws[9 * n: 10 * n]
-    o = 10 * n
-    t, d1, d2 = (ws[o: o + 3 * ne].reshape((ne, 3)), ws[o + 3 * ne: o + 6 * ne].reshape((ne, 3)),
-                 ws[o + 6 * ne: o + 9 * ne].reshape((ne, 3)))
-    o += 9 * ne
-    t_t, d1_t, d2_t = (ws[o: o + 3 * ne].reshape((ne, 3)), ws[o + 3 * ne: o + 6 * ne].reshape((ne, 3)),
-                       ws[o + 6 * ne: o + 9 * ne].reshape((ne, 3)))
-    o += 9 * ne
-    length, length_t, rt, rt_t = ws[o: o + ne], ws[o + ne: o + 2 * ne], ws[o + 2 * ne: o + 2 * ne + nh], \
-        ws[o + 2 * ne + nh: o + 2 * ne + 2 * nh]
-    o += 2 * ne + 2 * nh
-    J = ws[o: o + dest.shape[0]]
-    o += dest.shape[0]
-    P, R = ws[o: o + 9], ws[o + 9: o + 18]
-    q_t = q0
-    e0 = ws[:0]
-    ne0 = np.empty(0, np.int64)
+    # the iterate and the trial, each with its frames, velocity, acceleration and residual
+    q, t, length, d1, d2, rt = np.empty(n), np.empty((ne, 3)), np.empty(ne), np.empty((ne, 3)), np.empty((ne, 3)), \
+        np.empty(nh)
+    v, a, r = np.empty(n), np.empty(n), np.empty(n)
+    q_t, t_t, length_t, d1_t, d2_t, rt_t = q0, np.empty((ne, 3)), np.empty(ne), np.empty((ne, 3)), \
+        np.empty((ne, 3)), np.empty(nh)
+    v_t, a_t, r_t = np.empty(n), np.empty(n), np.empty(n)
+    dq, dx, b = np.empty(n), np.empty(n), np.empty(n)
+    J = np.empty(dest.shape[0])
+    P = np.empty(9)
     fresh = False                # the factorisation in hand was made at an iterate of this solve
     chord = kept[0] > 0.0 and abs(dv / kept[1] - 1.0) < REUSE_DV_CHANGE    # or, usable as it is, at an earlier one
     merit_start = -1.0
@@ -352,7 +343,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
         _trial(fns, q_t, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_edges, sign, d1c, tc, ref_prev,
                t_t, length_t, d1_t, d2_t, rt_t, v_t, a_t, rest, EA, sdofs, sslots, hnodes, beta, kbar, tbar, kb, kt,
                hdofs, hslots, S, W, mass, grav, rk, ra, rb, rl, eta[0], eta[1], rdofs, skk, ska, skb, hd_dofs, hd_w,
-               ht_c, ht_edge, ht_dof, ht_x, gy_f, gy_eps2, gy_dofs, fixed, r_t, e0, ne0)
+               ht_c, ht_edge, ht_dof, ht_x, gy_f, gy_eps2, gy_dofs, fixed, r_t)
         m_max, m = _norms(r_t, scale)
         take = False                 # the trial becomes the iterate
         newton = False               # a Newton correction (fresh Jacobian, line search) comes next
@@ -434,8 +425,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
                 stats[2] += 1.0
                 kept[0] = 0.0
                 if _factor_at(fns[FACTOR])(J, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc,
-                                           cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw,
-                                           ext) != 0:
+                                           cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw) != 0:
                     done = -1
                     break
                 kept[0] = 1.0
@@ -445,7 +435,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
             next_ = _LINE
         _rotated_solve(fns, r, q, N, i0, i2, rim, kept_pose, P, b, dx, buf, ab_off, ab_rows, ab_cols, kl, ku, C_off,
                        cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, chain_dofs, core_dofs,
-                       rhs, z, iw, ext, R)
+                       rhs, z, iw)
         for i in range(n):
             dq[i] = -dx[i]
             q_t[i] = q[i] + dq[i]
@@ -571,7 +561,7 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
             for j in range(4):
                 stats[j] = 0.0
             ok, its, qn, vn, fr = _newton_at(nfn)(
-                fns, qt, N, dv, v0, da, a0, angle, twist_hinge, codes, net, (D1[0], T[0], RT[0]), el, ef,
+                fns, qt.copy(), N, dv, v0, da, a0, angle, twist_hinge, codes, net, (D1[0], T[0], RT[0]), el, ef,
                 fixed, fix_slots, fix_diag, scale, tol, max_it, sol, dest, axis, kept, kept_pose, stats)
             cuts += stats[1]
             jacs += stats[2]
@@ -771,7 +761,7 @@ class StepNewton:
         self.sol = (solver._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], solver._B_off,
                     k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], np.int64(k["D_off"]), np.int64(k["nc"]),
                     solver._ipiv, solver._piv_ptr, solver._Y, solver._Y_off, solver._core_piv, solver._chain_dofs,
-                    solver._core, solver._rhs, solver._z, solver._iw, solver._ext)
+                    solver._core, solver._rhs, solver._z, solver._iw)
         self.dest = solver.dest
         i0, _, i2 = axis_nodes
         self.axis = np.array([i0, i2, rim], np.int64)

@@ -155,17 +155,16 @@ def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
     cn0, cn1, cn2 = out[i1, 0], out[i1, 1], out[i1, 2]          # the centre, predicted on the axis
     # by time (now, one step back, two steps back), each a row of three: the centre C, the node P, its distance
     # along the axis S, its radial vector R and that vector's length rn
-    w = np.empty(33)              # C, P, S, R, rn below: one allocation per step
-    C = w[:9]
+    C = np.empty(9)
     for i in range(3):
         c_prev = xp[i1, i]
         C[i] = x[i1, i]
         C[3 + i] = c_prev
         C[6 + i] = xpp[i1, i] if second else c_prev
-    P = w[9:18]
-    S = w[18:21]
-    R = w[21:30]
-    rn = w[30:33]
+    P = np.empty(9)
+    S = np.empty(3)
+    R = np.empty(9)
+    rn = np.empty(3)
     for k in range(x.shape[0]):
         for i in range(3):
             p_prev = xp[k, i]
