@@ -249,17 +249,18 @@ class Device:
             return
         sim = self.sim
 
-        def step() -> bool:
+        def steps(n: int, t_stop: float) -> int | None:
+            # up to n steps in one compiled call (Simulation.advance: the same steps as one at a time)
             try:
-                sim.step()
+                taken = sim.advance(n, t_stop=t_stop)
             except StepFailed as exc:
                 self.step_failures += 1
                 self.last_error = self._last_failure = str(exc)
                 on_failure(str(exc))
-                return False
+                return None
             self.last_error = ""
-            return True
-        self.pacer.advance(lambda: sim.time, step, budget, None if sim.adaptive else sim.dt, tick_period,
+            return taken
+        self.pacer.advance(lambda: sim.time, steps, budget, None if sim.adaptive else sim.dt, tick_period,
                            log_time=lambda: self.sim_time)
 
     def observe(self) -> Snapshot | None:

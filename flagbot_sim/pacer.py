@@ -19,9 +19,14 @@ The achieved rate over the window does not forget.
 It works with fixed steps (``dt``: a step is taken while at least half of it fits before the target) and with
 error-controlled ones (``dt`` None: steps of the size the simulation picks, while the target is ahead); either
 way simulated time only grows, so /clock is monotone.
+
+The steps of a tick go in batches (one compiled call each: Simulation.advance), as many as take half the
+budget left at the stepping rate the pacer has seen (one step while it has seen none), so a tick spends its
+budget in a few calls instead of one call per step, and overruns it by at most the half it allowed a batch.
 """
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from typing import Callable
@@ -41,6 +46,7 @@ class Pacer:
         self.lag = 0.0                  # s of simulated time the last tick ended short of its target
         self.given_up = 0.0             # s of simulated time given up by re-anchoring, in total
         self._samples: deque[tuple[float, float]] = deque()      # (wall, simulated time), last window
+        self.step_rate = 0.0            # steps per second of wall time while stepping (0: not seen yet)
         self.anchor(sim_time)
 
     def anchor(self, sim_time: float, wall: float | None = None) -> None:
@@ -57,19 +63,24 @@ class Pacer:
         """Simulated time the run should have reached at wall time ``wall``."""
         return self._sim0 + self.rtf * (wall - self._wall0)
 
-    def advance(self, sim_time: Callable[[], float], step: Callable[[], bool], budget: float,
+    def advance(self, sim_time: Callable[[], float], steps: Callable[[int, float], int | None], budget: float,
                 dt: float | None, tick_period: float, log_time: Callable[[], float] | None = None) -> bool:
-        """Step (``step()`` returns False when a step failed) towards the target for at most ``budget`` seconds
-        of wall time. ``sim_time()`` is the simulation's time, ``dt`` its fixed step (None: error-controlled),
-        ``log_time()`` the monotone time the achieved rate is measured on (default sim_time). Returns False if a
-        step failed."""
+        """Step towards the target for at most ``budget`` seconds of wall time. ``steps(n, t_stop)`` takes up to
+        n steps, none from a simulated time >= t_stop, and returns how many it took (None: a step failed);
+        ``sim_time()`` is the simulation's time, ``dt`` its fixed step (None: error-controlled), ``log_time()``
+        the monotone time the achieved rate is measured on (default sim_time). Returns False if a step failed."""
         start = self.clock()
         ok = True
         if self.rtf > 0:
             target = self.target(start)
-            while self._more(sim_time(), target, dt) and self.clock() - start < budget:
-                if not step():
+            # a fixed step is taken while t + dt / 2 <= target, an error-controlled one while t < target
+            t_stop = math.nextafter(target - 0.5 * dt, math.inf) if dt is not None else target
+            while sim_time() < t_stop and self.clock() - start < budget:
+                taken = self._batch(steps, t_stop, budget - (self.clock() - start))
+                if taken is None:
                     ok = False
+                    break
+                if taken == 0:
                     break
             lag = target - sim_time()
             self.lag = max(0.0, lag)
@@ -82,10 +93,11 @@ class Pacer:
             short = False
             self.lag = 0.0
             while True:
-                if not step():
+                taken = self._batch(steps, math.inf, budget - (self.clock() - start))
+                if taken is None:
                     ok = False
                     break
-                if self.clock() - start >= budget:
+                if taken == 0 or self.clock() - start >= budget:
                     break
         now = self.clock()
         self._samples.append((now, (log_time or sim_time)()))
@@ -94,15 +106,23 @@ class Pacer:
         self.behind = self.rtf > 0 and (short or self._slow())
         return ok
 
+    def _batch(self, steps: Callable[[int, float], int | None], t_stop: float, left: float) -> int | None:
+        """One call of ``steps``: as many steps as take half the ``left`` budget at the rate seen so far (at
+        least one); learns the rate from it."""
+        n = max(1, int(0.5 * left * self.step_rate)) if self.step_rate > 0 else 1
+        t0 = self.clock()
+        taken = steps(n, t_stop)
+        spent = self.clock() - t0
+        if taken and spent > 0:
+            rate = taken / spent
+            self.step_rate = rate if self.step_rate <= 0 else 0.5 * (self.step_rate + rate)
+        return taken
+
     def _slow(self) -> bool:
         """The achieved factor, over at least half a window, is below (1 - BEHIND_TOL) of the requested one."""
         rate = self.achieved()
         return (rate is not None and self._samples[-1][0] - self._samples[0][0] >= 0.5 * self.window
                 and rate < (1.0 - BEHIND_TOL) * self.rtf)
-
-    @staticmethod
-    def _more(t: float, target: float, dt: float | None) -> bool:
-        return t + 0.5 * dt <= target if dt is not None else t < target
 
     def achieved(self) -> float | None:
         """Real-time factor achieved over the last window of wall time (None before two samples)."""

@@ -16,6 +16,7 @@ class World:
         self.dt = dt
         self.cost = cost
         self.steps = 0
+        self.calls = 0
 
     def clock(self):
         return self.wall
@@ -26,9 +27,18 @@ class World:
         self.steps += 1
         return True
 
+    def steps_(self, n, t_stop):
+        """The simulation's batch: up to n steps, none from a time >= t_stop; the steps taken."""
+        self.calls += 1
+        k = 0
+        while k < n and self.t < t_stop:
+            self.step()
+            k += 1
+        return k
+
     def run(self, pacer, ticks, period=0.02, budget=0.016, dt=None):
         for _ in range(ticks):
-            pacer.advance(lambda: self.t, self.step, budget, self.dt if dt is None else dt, period)
+            pacer.advance(lambda: self.t, self.steps_, budget, self.dt if dt is None else dt, period)
             self.wall = (math.floor(self.wall / period + 1e-9) + 1) * period      # the next tick
 
 
@@ -52,11 +62,34 @@ def test_a_slow_simulation_is_behind_spends_only_its_budget_and_owes_no_debt():
     assert p.target(w.wall) - w.t <= 10.0 * 1.0 + 0.1
 
 
-def test_as_fast_as_possible_fills_the_budget():
+def test_as_fast_as_possible_fills_the_budget_in_a_few_batches():
+    """rtf 0: each tick steps for its budget, in batches of half the budget left at the rate seen (one step
+    while no rate is known): far fewer calls than steps, never past the budget by more than a step."""
     w = World(cost=0.001)
     p = Pacer(0.0, 0.0, clock=w.clock)
     w.run(p, 10, budget=0.016)
-    assert w.steps == 10 * 16 and not p.behind
+    assert 10 * 15 <= w.steps <= 10 * 16 and not p.behind
+    assert w.calls <= 10 * 7 and p.step_rate == pytest.approx(1000.0)
+
+
+def test_batches_reach_the_target_without_passing_it_and_keep_to_the_budget():
+    """rtf > 0 with fixed steps: a tick steps exactly to its target (t + dt / 2 <= target) in batches; a slow
+    simulation's tick ends within its budget plus the half of it a batch may use."""
+    w = World(dt=0.001, cost=0.0001)
+    p = Pacer(2.0, 0.0, clock=w.clock)
+    for _ in range(50):
+        tick = w.wall
+        p.advance(lambda: w.t, w.steps_, 0.016, w.dt, 0.02)
+        assert w.t + 0.5 * w.dt > p.target(tick) - 1e-12 and w.t - 0.5 * w.dt <= p.target(tick) + 1e-12
+        w.wall = tick + 0.02
+    assert w.calls < w.steps / 4
+    slow = World(dt=0.01, cost=0.003)
+    p = Pacer(20.0, 0.0, clock=slow.clock)
+    for _ in range(20):
+        tick = slow.wall
+        p.advance(lambda: slow.t, slow.steps_, 0.016, slow.dt, 0.02)
+        assert slow.wall - tick <= 0.016 + 0.5 * 0.016 + 0.003
+        slow.wall = max(slow.wall, tick + 0.02)
 
 
 def test_error_controlled_steps_go_to_the_target_without_overstepping_it_by_more_than_one():
@@ -65,7 +98,7 @@ def test_error_controlled_steps_go_to_the_target_without_overstepping_it_by_more
     p = Pacer(1.0, 0.0, clock=w.clock)
     ts = []
     for _ in range(100):
-        p.advance(lambda: w.t, w.step, 0.016, None, 0.02)
+        p.advance(lambda: w.t, w.steps_, 0.016, None, 0.02)
         ts.append(w.t)
         assert w.t >= p.target(w.wall) and w.t - p.target(w.wall) < w.dt
         w.wall += 0.02
@@ -89,7 +122,7 @@ def test_steps_slower_than_a_second_are_behind_at_every_tick_and_the_time_given_
     p = Pacer(1.0, 0.0, clock=w.clock)
     verdicts = []
     for _ in range(12):
-        p.advance(lambda: w.t, w.step, 0.016, w.dt, 0.02)
+        p.advance(lambda: w.t, w.steps_, 0.016, w.dt, 0.02)
         verdicts.append(p.behind)
         w.wall += 0.02                           # the next tick (already due after a slow step)
     assert all(verdicts[2:]), verdicts
@@ -107,7 +140,7 @@ def test_a_run_slightly_too_slow_is_behind_although_no_tick_misses_by_two_steps(
     for k in range(300):                         # 6 s of 20 ms ticks, 17 of the 20 steps each could need
         for _ in range(17):
             w.step()
-        p.advance(lambda: w.t, lambda: True, 0.0, w.dt, 0.02)     # no budget: it steps no further itself
+        p.advance(lambda: w.t, lambda n, t_stop: 0, 0.0, w.dt, 0.02)    # no budget: it steps no further itself
         w.wall += 0.02
         late.append(p.behind)
     assert p.achieved() == pytest.approx(0.85, rel=0.02)

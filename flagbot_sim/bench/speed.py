@@ -230,9 +230,68 @@ def side_by_side(against: str, pairs: int = 3, commands=SIDE_BY_SIDE) -> str:
     return "\n".join(lines)
 
 
+#: the device (sim_node's stepping, without ROS: device.Device, ticks of the node's default 50 Hz with its
+#: stepping budget) as fast as it can go, design 1, n = 3 at 150 rpm: its simulated seconds per wall second after
+#: 2 s of warm-up, printed by a child process of either checkout
+DEVICE_CODE = r"""
+import sys, time
+from flagbot_sim.device import Device, PARAMS
+try:
+    from flagbot_sim.physics.blas import single_threaded_process
+    single_threaded_process()                  # as sim_node's console script does
+except ImportError:
+    pass
+values = {s.name: s.default for s in PARAMS}
+values.update(scene="design1", n_flagella=3, real_time_factor=0.0, initial_omega=150 * 0.10471975511965977)
+device = Device(values)
+device.configure()
+tick = 1.0 / 50.0
+while device.sim.time < 2.0:
+    device.advance(0.8 * tick, tick)
+t0, w0 = device.sim.time, time.perf_counter()
+while time.perf_counter() - w0 < float(sys.argv[1]):
+    device.advance(0.8 * tick, tick)
+print((device.sim.time - t0) / (time.perf_counter() - w0))
+"""
+
+
+def device_rate(root: str | None = None, seconds: float = 4.0) -> float:
+    """The device's real-time factor at rtf 0 (:data:`DEVICE_CODE`) in a child process with the package from
+    ``root`` (default this checkout)."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ)
+    if root is not None:
+        env["PYTHONPATH"] = root
+    out = subprocess.run([sys.executable, "-c", DEVICE_CODE, str(seconds)], env=env, cwd=root or os.getcwd(),
+                         capture_output=True, text=True)
+    if out.returncode != 0:
+        raise RuntimeError(f"the device benchmark failed (PYTHONPATH={root}): {out.stderr.strip()[-300:]}")
+    return float(out.stdout.strip().splitlines()[-1])
+
+
+def device_side_by_side(against: str, pairs: int) -> str:
+    """The device's real-time factor at rtf 0 with this checkout and with ``against``, alternating pairs."""
+    from pathlib import Path
+    if not (Path(against) / "flagbot_sim" / "device.py").exists():
+        return f"{'device, rtf 0 (sim s / wall s)':28s} skipped: {against} has no flagbot_sim/device.py"
+    here = str(Path(__file__).resolve().parents[2])
+    rows = []
+    for i in range(pairs):
+        order = (against, here) if i % 2 == 0 else (here, against)
+        got = {root: device_rate(root) for root in order}
+        rows.append((got[against], got[here]))
+    ratio = sorted(n / o for o, n in rows)
+    return (f"{'device, rtf 0 (sim s / wall s)':28s} {statistics.median(o for o, _ in rows):10.1f} "
+            f"{statistics.median(n for _, n in rows):10.1f}    new/old rate {statistics.median(ratio):.2f} "
+            f"({ratio[0]:.2f}..{ratio[-1]:.2f})")
+
+
 def run(args) -> int:
     if args.against:
         print(side_by_side(args.against, args.pairs))
+        print(device_side_by_side(args.against, args.pairs), flush=True)
         return 0
     cases = CASES[:2] + CASES[3:5] if args.quick else CASES
     repeat = 1 if args.quick else args.repeat
@@ -241,6 +300,8 @@ def run(args) -> int:
         results.append(((scene, n), [measure(scene, n, args.warmup, args.measure) for _ in range(repeat)]))
         print(f"  measured {scene} n={n}", flush=True)
     print(format_throughput(results), flush=True)
+    print(f"the device (sim_node's stepping without ROS, 50 Hz ticks), design 1, n = 3, 150 rpm, as fast as it "
+          f"can: real-time factor {device_rate():.1f}", flush=True)
     if not args.no_scaling:
         rows, fs, fn = scaling(edges_per_flagellum=(5, 20, 80, 330) if args.quick else
                                (5, 10, 20, 40, 80, 160, 330))
