@@ -282,8 +282,11 @@ def test_ctrl_c_during_the_first_compile_stops_it_with_one_line_and_no_helper_le
     import signal
     import time
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    # a suite started in the background of a non-interactive shell runs with SIGINT ignored, which Python keeps
+    # for its children (this test failed so, the Ctrl-C never seen): the child gets a foreground command's SIGINT
     p = subprocess.Popen([sys.executable, *argv], cwd=ROOT, env=env, stdout=subprocess.PIPE,
-                         stderr=subprocess.STDOUT, text=True)
+                         stderr=subprocess.STDOUT, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     for line in p.stdout:                     # wait for the compile to start, then interrupt it
         lines.append(line)
