@@ -49,3 +49,9 @@ def test_the_warm_start_breakdown_runs_and_names_every_phase():
                   "10 steps (first calls of the step kernels)"):
         assert phase in marks and marks[phase] >= 0.0
     assert data["age"] > 0.0 and shutdown >= 0.0
+
+
+def test_the_verdict_is_the_median_rounds_and_says_how_many_rounds_met_the_target():
+    from flagbot_sim.bench.startup import target_verdict
+    assert target_verdict([4.5, 5.6, 5.4], 5.0) == "target <= 5: misses it (met in 1 of 3 rounds)"
+    assert target_verdict([1.9, 2.1, 1.95, 2.0, 1.5], 2.0) == "target <= 2: meets it (met in 4 of 5 rounds)"
