@@ -272,16 +272,13 @@ def device_rate(root: str | None = None, seconds: float = 4.0) -> float:
 
 
 def device_side_by_side(against: str, pairs: int) -> str:
-    """The device's real-time factor at rtf 0 with this checkout and with ``against``, alternating pairs."""
+    """The device's real-time factor at rtf 0 with this checkout and with ``against``: alternating pairs after one
+    untimed run of each, as the whole processes above."""
     from pathlib import Path
     if not (Path(against) / "flagbot_sim" / "device.py").exists():
         return f"{'device, rtf 0 (sim s / wall s)':28s} skipped: {against} has no flagbot_sim/device.py"
     here = str(Path(__file__).resolve().parents[2])
-    rows = []
-    for i in range(pairs):
-        order = (against, here) if i % 2 == 0 else (here, against)
-        got = {root: device_rate(root) for root in order}
-        rows.append((got[against], got[here]))
+    rows = alternating_pairs(lambda root, _: device_rate(root), here, against, [], pairs)
     ratio = sorted(n / o for o, n in rows)
     return (f"{'device, rtf 0 (sim s / wall s)':28s} {statistics.median(o for o, _ in rows):10.1f} "
             f"{statistics.median(n for _, n in rows):10.1f}    new/old rate {statistics.median(ratio):.2f} "
