@@ -199,11 +199,10 @@ class History:
         T = h[:, 0]
         if t < T[0] - 1e-12 or t > T[-1] + 1e-12:
             return None
-        lo = min(max(int(np.searchsorted(T, t, side="right")) - 1, 0), len(T) - 2) if len(T) > 1 else 0
-        a = h[lo]
         if len(T) == 1:
-            return a.copy()
-        b = h[lo + 1]
+            return h[0].copy()
+        lo = min(max(int(np.searchsorted(T, t, side="right")) - 1, 0), len(T) - 2)
+        a, b = h[lo], h[lo + 1]
         if b[0] <= a[0] or t <= a[0]:
             return a.copy()
         if t >= b[0]:
