@@ -45,7 +45,12 @@ changed = blas.single_threaded_process()
 import scipy.linalg                             # scipy's loads after it
 scipy.linalg.lu_factor(numpy.eye(40) + 0.1)
 counts = sorted(int(g()) for _, _, _, g in blas._libraries())
-print(json.dumps({"changed": changed, "counts": counts, "env": os.environ.get("OPENBLAS_NUM_THREADS")}))
+scans, libraries = [], blas._libraries
+blas._libraries = lambda: scans.append(1) or libraries()
+with blas.one_thread():                         # (the steady solver's)
+    inside = sorted(int(g()) for _, _, _, g in libraries())
+print(json.dumps({"changed": changed, "counts": counts, "env": os.environ.get("OPENBLAS_NUM_THREADS"),
+                  "scans": len(scans), "inside": inside}))
 """
 
 
@@ -64,7 +69,10 @@ def test_the_programs_run_every_openblas_on_one_thread_unless_the_user_set_a_cou
         pytest.skip("no OpenBLAS found")
     # both libraries, the one loaded before and the one loaded after, and the children through the variable
     assert got["changed"] and len(got["counts"]) == 2 and set(got["counts"]) == {1} and got["env"] == "1"
+    # the steady solver's one_thread then has nothing to do, and does not read the process's maps again
+    assert got["scans"] == 0 and set(got["inside"]) == {1}
     mine = _program({**env, "OPENBLAS_NUM_THREADS": "2"})
     assert not mine["changed"] and mine["env"] == "2"
+    assert mine["scans"] == 1 and set(mine["inside"]) == {1}   # one_thread still sets the user's pools to one
     if len(os.sched_getaffinity(0)) >= 2:           # (OpenBLAS caps the count at the cores it may use)
         assert set(mine["counts"]) == {2}

@@ -69,7 +69,10 @@ def one_thread():
     The steady solver's matrices are small (hundreds of unknowns): SuperLU's and ARPACK's BLAS calls cost more in
     waking and joining threads than they compute, so with the default thread pool a solve with its stability took
     ~2x the CPU, and ARPACK's part ~10x, of one thread's (a sweep's workers run with one thread for the same
-    reason)."""
+    reason). In a process :func:`single_threaded_process` set up it changes nothing, and does not look again."""
+    if _single_threaded:
+        yield
+        return
     restore = []
     for path, _, setter, getter in _libraries():
         before = int(getter())
@@ -86,6 +89,9 @@ def one_thread():
 
 #: the variable OpenBLAS reads its thread count from when it loads
 THREADS_VARIABLE = "OPENBLAS_NUM_THREADS"
+#: whether single_threaded_process put every OpenBLAS of this process on one thread (then one_thread need not
+#: read /proc/self/maps at every steady solve: ~2 ms of a 36 ms `flagbot steady` of design 2, n = 3)
+_single_threaded = False
 
 
 def single_threaded_process() -> bool:
@@ -98,10 +104,12 @@ def single_threaded_process() -> bool:
     CPU samples for no work done (design 1, n = 3, 150 rpm, 300 s: 3.35 s of CPU on one thread against 3.6 s,
     same numbers to the last bit). The libraries loaded already (numpy's, when a program's first import brought
     it in) are set at run time; those loaded later (scipy's) and every child process read the variable."""
+    global _single_threaded
     if THREADS_VARIABLE in os.environ:
         return False
     os.environ[THREADS_VARIABLE] = "1"
     for path, _, setter, getter in _libraries():
         _count(path, getter)
         setter(1)
+    _single_threaded = True
     return True
