@@ -49,9 +49,9 @@ def test_every_effect_names_kernel_groups_that_exist_and_every_group_is_used():
         used |= set(cls.kernel_groups)
     assert used == set(warmup.GROUPS)
     sc = load_scene("design1", ["scene.effects=['inertia','head_drag','motor']", "numerics.linear_solver='splu'"])
-    assert warmup.groups_for(sc) == ["frames", "stretch", "bend_twist", "time_stepping"]
+    assert warmup.groups_for(sc) == ["frames", "stretch", "bend_twist", "bend_twist_global", "time_stepping"]
     assert warmup.groups_for(load_scene("clamped_flagellum"), time_stepping=False) == \
-        ["frames", "stretch", "bend_twist", "rft", "clamp"]
+        ["frames", "stretch", "bend_twist", "bend_twist_global", "rft", "clamp"]
 
 
 def test_the_split_balances_the_two_processes_and_keeps_small_jobs_here():
@@ -85,10 +85,11 @@ def test_a_scene_compiles_none_of_the_kernels_of_effects_it_does_not_use(tmp_pat
     p = _run_cold(tmp_path, "steady", "clamped_flagellum", "--no-stability", "--json")
     assert json.loads(p.stdout)["steady"] is True
     cached = _cached_kernels(tmp_path)
-    assert {"elastic._bend_twist", "effects._rft_py", "frames.twist_for_director"} <= cached
+    assert {"elastic._bend_twist_local", "elastic._bend_twist_global", "effects._rft_py",
+            "frames.twist_for_director"} <= cached
     assert not cached & {"elastic.tangent_torque", "stepper._predict_cylindrical", "linsolve._arrow_factor",
                          "linsolve._arrow_solve"}, cached
-    assert "compiling kernels (first run only" in p.stderr and "(5/5)" in p.stderr
+    assert "compiling kernels (first run only" in p.stderr and "(6/6)" in p.stderr
 
 
 def test_first_run_announces_the_compilation_once_and_reports_it_apart(tmp_path):
@@ -98,15 +99,15 @@ def test_first_run_announces_the_compilation_once_and_reports_it_apart(tmp_path)
         runs.append((json.loads(p.stdout), p.stderr))
     (cold, cold_err), (warm, warm_err) = runs
     assert cold_err.count("compiling kernels (first run only") == 1
-    # the compiled Newton step compiles in the background, not in the run's wait
+    # the compiled Newton step, the predictor and the arrow solver compile in the background, not in the run's wait
     groups = [g for g in warmup.groups_for(load_scene("design1")) if not warmup.GROUPS[g].background]
-    assert "newton" in warmup.groups_for(load_scene("design1")) and "newton" not in groups
+    assert {"newton", "arrow", "time_stepping"} <= set(warmup.groups_for(load_scene("design1"))) - set(groups)
     # one progress line per group, the last one counting them all, and the total
     for g in groups:
         assert f"  {g} compiled (" in cold_err
     assert f"({len(groups)}/{len(groups)})" in cold_err and "kernels compiled in" in cold_err
     # ... and the user is told so, in one line of the compile report
-    assert cold_err.count("newton: compiling in the background") == 1
+    assert cold_err.count("time_stepping, arrow, newton: compiling in the background") == 1
     # the second run waits for nothing (the background compile may still be going on: it may say so again)
     assert "compiling kernels" not in warm_err and "compiled (" not in warm_err
     # the compile time is reported on its own and is not in the simulation's wall time
@@ -115,35 +116,60 @@ def test_first_run_announces_the_compilation_once_and_reports_it_apart(tmp_path)
     assert cold["omega_h"] == warm["omega_h"] and cold["v"] == warm["v"]
 
 
-def test_a_first_run_compiles_the_newton_step_in_the_background_for_the_next_run(tmp_path):
-    """A cold run does not wait for the compiled Newton step (its Python loop gives the same numbers); a process
-    it leaves behind compiles it into the cache, and the next run uses it."""
-    p = _run_cold(tmp_path, "run", "design1", "--duration", "0.2", "--json")
-    first = json.loads(p.stdout)
-    deadline = time.monotonic() + 300
-    while "newton._newton" not in _cached_kernels(tmp_path) and time.monotonic() < deadline:
-        time.sleep(0.5)
-    assert "newton._newton" in _cached_kernels(tmp_path)
+#: a first run in one process: it steps until it has switched to the compiled step (or 300 s), then 30 steps more
+FIRST_RUN = """
+import json, time
+import numpy as np
+from flagbot_sim.physics import Simulation, warmup
+from flagbot_sim.scene import load_scene
+sim = Simulation(load_scene("design1"))
+deferred = sorted(warmup.DEFERRED)
+deadline = time.monotonic() + 300
+while sim.stepper._newton is None and time.monotonic() < deadline:
+    sim.advance(1)
+switched_at = sim.steps
+sim.advance(30)
+print(json.dumps([deferred, switched_at, sim.steps, sim.stepper._newton is not None,
+                  sim.state.q.view(np.int64).tolist(), sim.observer.rate_h]))
+"""
+#: the same steps in a later process (the cache warm): compiled from the first step
+LATER_RUN = """
+import json
+import numpy as np
+from flagbot_sim.physics import Simulation, warmup
+from flagbot_sim.scene import load_scene
+sim = Simulation(load_scene("design1"))
+compiled = sim.stepper._newton is not None and not warmup.DEFERRED
+while sim.steps < {steps}:
+    sim.advance({steps} - sim.steps)
+print(json.dumps([compiled, sim.steps, sim.state.q.view(np.int64).tolist(), sim.observer.rate_h]))
+"""
+
+
+def test_a_first_run_switches_to_the_steps_compiled_in_the_background_and_the_next_run_starts_with_them(tmp_path):
+    """A cold run does not wait for the compiled Newton step, the predictor or the arrow solver: it steps on their
+    interpreted twins while a process it leaves behind compiles them into the cache, switches to them once they
+    are there, and the next run uses them from its first step; the numbers are the same to the last bit."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([sys.executable, "-c", FIRST_RUN], cwd=ROOT, env=env, capture_output=True, text=True,
+                       timeout=900)
+    assert p.returncode == 0, p.stderr
+    deferred, switched_at, steps, switched, q, rate_h = json.loads(p.stdout.strip().splitlines()[-1])
+    assert deferred == ["arrow", "newton", "time_stepping"]
+    assert "arrow, newton: compiling in the background" in p.stderr
+    assert switched and switched_at > 0, (switched_at, p.stderr)      # it stepped on the twins, then switched
+    assert {"newton._newton", "linsolve._arrow_factor", "stepper._predict_cylindrical"} <= _cached_kernels(tmp_path)
     # the background process's lock lies in the kernel cache's own directory, beside the kernels' index files
     # (it was written one level up: for numba's in-tree cache that is the package's source directory)
     locks = list((tmp_path / "cache").rglob("flagbot_background.lock"))
     newton_dirs = {f.parent for f in (tmp_path / "cache").rglob("newton._newton*.nbi")}
     assert len(locks) == 1 and locks[0].parent in newton_dirs
-    probe = ("import json; from flagbot_sim.physics import Simulation; from flagbot_sim.scene import load_scene; "
-             "s = Simulation(load_scene('design1')); s.run(0.2); d = s.summary(); "
-             "print(json.dumps([s.stepper._newton is not None, d['omega_h'], d['v']]))")
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    deadline = time.monotonic() + 300     # the background process may still be writing the last of it
-    while True:
-        q = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=env, capture_output=True, text=True,
-                           timeout=600)
-        assert q.returncode == 0, q.stderr
-        used, omega_h, v = json.loads(q.stdout.strip().splitlines()[-1])
-        if used or time.monotonic() > deadline:
-            break
-        time.sleep(1.0)
-    assert used and "compiling" not in q.stderr
-    assert (omega_h, v) == (first["omega_h"], first["v"])
+    q2 = subprocess.run([sys.executable, "-c", LATER_RUN.format(steps=steps)], cwd=ROOT, env=env,
+                        capture_output=True, text=True, timeout=600)
+    assert q2.returncode == 0, q2.stderr
+    compiled, steps2, q_later, rate_h2 = json.loads(q2.stdout.strip().splitlines()[-1])
+    assert compiled and "compiling" not in q2.stderr
+    assert steps2 == steps and q_later == q and rate_h2 == rate_h
 
 
 @pytest.mark.parametrize("scene,extra", [("design1", ["scene.effects=['inertia','head_drag','motor']"]),
@@ -204,8 +230,10 @@ groups = ["arrow", "frames", "stretch", "clamp", "rft", "head_torque"]   # (enou
                                                                       # of one is another's callee)
 mine, theirs = warmup.split(groups, 2, warmup.HELPER_START["spawn"])
 lines = []
-with event.install_recorder("numba:compile") as rec:
-    warmup.ensure_compiled(notify=lines.append, groups=groups)
+with event.install_recorder("numba:compile") as rec:     # (ensure_compiled's cold path, without its deferral
+    warmup._Compile(groups, lines.append, time.perf_counter()).run()          # of the background group arrow)
+    for g in groups:
+        warmup.GROUPS[g].warm()
 here = {ev.data["dispatcher"].py_func.__name__ for _, ev in rec.buffer}
 print(repr((mine, theirs, lines, sorted(here))))
 """
@@ -229,7 +257,7 @@ def test_a_numpy_process_forks_its_helper_despite_openblas_worker_threads(tmp_pa
     it again on its next call): the helper is forked, runs LAPACK (the arrow solver's warm-up) in the child,
     reports, and what it compiled is loaded here, not compiled again."""
     code = """
-import os
+import os, time
 import numpy as np, scipy.linalg, scipy.sparse.linalg
 from numba.core import event
 from flagbot_sim.physics import blas, warmup
@@ -246,8 +274,10 @@ def spy(self, groups):
 warmup._Helper.__init__ = spy
 groups = ["arrow", "frames", "stretch", "clamp", "rft", "head_torque"]
 lines = []
-with event.install_recorder("numba:compile") as rec:
-    warmup.ensure_compiled(notify=lines.append, groups=groups)
+with event.install_recorder("numba:compile") as rec:     # (ensure_compiled's cold path, without its deferral
+    warmup._Compile(groups, lines.append, time.perf_counter()).run()          # of the background group arrow)
+    for g in groups:
+        warmup.GROUPS[g].warm()
 here = {ev.data["dispatcher"].py_func.__name__ for _, ev in rec.buffer}
 mine, theirs = warmup.split(groups, 2, warmup.HELPER_START["fork"])
 print(repr((threads, forked, mine, theirs, lines, sorted(here))))

@@ -18,7 +18,7 @@ loop over all hinges at once (the arrays of one stage are the input of the next)
     _change_variables   theta -> theta + Omega(x) applied to gradient and Hessian
     _scatter            into the residual vector and the CSC data array through slots built once
 
-and ``_bend_twist`` runs them. Energy, gradient and Hessian come from the same stages, so the finite-difference
+and ``_bend_twist_local`` (the first five) and ``_bend_twist_global`` (the last three) run them. Energy, gradient and Hessian come from the same stages, so the finite-difference
 tests check the code that runs.
 """
 from __future__ import annotations
@@ -492,28 +492,35 @@ def _scatter(dofs, slots, grad, Hs, r, J, want_hessian):
 
 
 @kernel
-def _bend_twist(x, theta, t, tc, length, d1, d2, rt, nodes, edges, sign, beta, kappa_bar, tau_bar, k_bend,
-                k_twist, dofs, slots, twist_hinge, twist_offset, S, W, r, J, want_hessian):
-    """Bend + twist forces of every hinge into r (and their Hessian into J): the stages in order.
+def _bend_twist_local(x, theta, d1, d2, rt, nodes, edges, sign, beta, kappa_bar, tau_bar, k_bend, k_twist,
+                      twist_hinge, twist_offset, S, W, grad, Hs, want_hessian):
+    """The bend-twist springs in every hinge's local DOFs, the first half of the stages: S (H, 6) each hinge's
+    lengths and strains (see _hinge_geometry: what ElasticModel.hinge_strains reads), W (H, 3) its moments
+    (_hinge_weights: ElasticModel.hinge_moments), grad (H, 11) its gradient and, if ``want_hessian``, Hs (H,
+    121) its Hessian. Arguments: positions and twist angles; the trial frames (d1, d2, reference twist); the
+    springs (nodes, edges, sign, beta, rest curvature and twist, stiffnesses); the motor's natural-twist offset.
 
-    Arguments: positions and twist angles; the trial frames (t, t_committed, length, d1, d2, reference twist);
-    the springs (nodes, edges, sign, beta, rest curvature and twist, stiffnesses, local DOFs and CSC slots); the
-    motor's natural-twist offset; the outputs: S (H, 6) each hinge's lengths and strains (see _hinge_geometry:
-    what ElasticModel.hinge_strains reads), W (H, 3) its moments (_hinge_weights: ElasticModel.hinge_moments),
-    r, J."""
-    H, Ne = nodes.shape[0], t.shape[0]
+    Two kernels (this one and :func:`_bend_twist_global`), not one, so that a first run's compile of the springs
+    splits between two processes (warmup.py); both always run together, in this order."""
+    H = nodes.shape[0]
     V = np.empty((H, 21))
     G = np.empty((H, 33))
-    grad = np.empty((H, 11))
-    Hs = np.empty((H, 121)) if want_hessian else np.empty((0, 121))
-    hg = np.empty((Ne, 3))
-    hh = np.empty((Ne, 9)) if want_hessian else np.empty((0, 9))
     _hinge_geometry(x, theta, d1, d2, rt, nodes, edges, sign, beta, V, S)
     _hinge_weights(S, kappa_bar, tau_bar, twist_hinge, twist_offset, k_bend, k_twist, W)
     _strain_gradients(V, S, G)
     _gradients(G, W, sign, grad)
     if want_hessian:
         _hessians(V, S, W, G, sign, k_bend, k_twist, Hs)
+
+
+@kernel
+def _bend_twist_global(t, tc, length, edges, sign, dofs, slots, grad, Hs, r, J, want_hessian):
+    """The second half: every hinge's gradient (and Hessian) from :func:`_bend_twist_local` through the change of
+    variables of the reference frames' transport (t, t_committed, length) into the residual r (and the CSC data
+    array J) at the springs' DOFs and slots."""
+    Ne = t.shape[0]
+    hg = np.empty((Ne, 3))
+    hh = np.empty((Ne, 9)) if want_hessian else np.empty((0, 9))
     _edge_holonomy(t, tc, length, hg, hh, want_hessian)
     _change_variables(grad, Hs, edges, sign, hg, hh, want_hessian)
     _scatter(dofs, slots, grad, Hs, r, J, want_hessian)
@@ -562,6 +569,8 @@ class ElasticModel:
         self.hinge_slots = np.zeros((net.n_hinges, 121), np.int64)
         self._strains = np.empty((net.n_hinges, 6))           # _bend_twist's per-hinge strains, a work array
         self._moments = np.empty((net.n_hinges, 3))           # and moments
+        self._grad = np.empty((net.n_hinges, 11))             # every hinge's local gradient and Hessian
+        self._Hs = np.empty((net.n_hinges, 121))
         # rest strains from the undeformed configuration with theta = 0
         q0 = net.initial_q()
         x0 = self.positions(q0)
@@ -636,7 +645,8 @@ class ElasticModel:
                     twist_hinge: int = -1, twist_offset: float = 0.0) -> None:
         want = J is not None
         net = self.net
-        _bend_twist(self.positions(q), q[3 * self.n_nodes:], fr.t, fr.t_committed, fr.length, fr.d1, fr.d2,
-                    fr.ref_twist, net.hinge_nodes, net.hinge_edges, self.sign, self.beta, self.kappa_bar,
-                    self.tau_bar, self.k_bend, self.k_twist, self.hinge_dofs, self.hinge_slots, twist_hinge,
-                    twist_offset, S, W, r, J if want else np.empty(0), want)
+        _bend_twist_local(self.positions(q), q[3 * self.n_nodes:], fr.d1, fr.d2, fr.ref_twist, net.hinge_nodes,
+                          net.hinge_edges, self.sign, self.beta, self.kappa_bar, self.tau_bar, self.k_bend,
+                          self.k_twist, twist_hinge, twist_offset, S, W, self._grad, self._Hs, want)
+        _bend_twist_global(fr.t, fr.t_committed, fr.length, net.hinge_edges, self.sign, self.hinge_dofs,
+                           self.hinge_slots, self._grad, self._Hs, r, J if want else np.empty(0), want)

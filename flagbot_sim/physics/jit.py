@@ -73,3 +73,38 @@ def address(dispatcher, spec: str) -> int:
     process has not yet)."""
     from numba.experimental.function_type import _get_jit_address
     return int(_get_jit_address(dispatcher, signature(spec)))
+
+
+# ----------------------------------------------------------------------------------------------- interpreted twins
+_TWINS: dict = {}
+
+
+def interpreted(dispatcher):
+    """The plain-Python twin of a compiled function: its own source code run by the interpreter, with every
+    compiled function it calls replaced by that function's twin (so calling it compiles nothing).
+
+    The arithmetic is the same operation for operation (IEEE double in both; numba contracts nothing into fused
+    multiply-adds and calls the C library's ``sqrt``, ``sin``, ``atan2`` as ``math`` does), so it gives the same
+    numbers to the last bit, only slower: what a first run uses while a background process compiles the kernel
+    (warmup.py). Memoised: one twin per function."""
+    from numba.core.dispatcher import Dispatcher
+    twin = _TWINS.get(dispatcher)
+    if twin is None:
+        import types as pytypes
+        f = dispatcher.py_func
+        ns = dict(f.__globals__)
+        twin = _TWINS[dispatcher] = pytypes.FunctionType(f.__code__, ns, f.__name__, f.__defaults__, f.__closure__)
+        for name in _global_names(f.__code__):
+            value = ns.get(name)
+            if isinstance(value, Dispatcher):
+                ns[name] = interpreted(value)
+    return twin
+
+
+def _global_names(code) -> set[str]:
+    """The names a code object (and the code nested in it) may look up among its globals."""
+    names = set(code.co_names)
+    for c in code.co_consts:
+        if hasattr(c, "co_names"):
+            names |= _global_names(c)
+    return names

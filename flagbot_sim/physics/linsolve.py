@@ -19,14 +19,16 @@ maps every CSC slot once, at construction, to its place in the banded / dense bl
 """
 from __future__ import annotations
 
+import functools
+
 import llvmlite.binding as llvm
 import numpy as np
-import scipy.sparse.linalg as spla
 from numba import types
 from numba.extending import get_cython_function_address
 
 from .assembly import SparsePattern
 from .jit import kernel, stage
+from .tiers import deferred
 
 
 class SingularJacobian(RuntimeError):
@@ -164,6 +166,101 @@ def _arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_pt
             x[chain_dofs[z0 + rr]] = acc
 
 
+# ----------------------------------------------------------------------------------------------- interpreted twins
+# The two kernels above, run by the interpreter: the same LAPACK routines (the very functions the compiled code
+# calls, through ctypes) on the same buffers, and numpy for the loops, summing in the same order (np.add.accumulate
+# adds left to right, from a leading 0.0 as the loops' accumulators start): the same numbers to the last bit, and
+# the same factors in the same places, so a factorisation made here serves the compiled solve and back. What a
+# first run steps with while a background process compiles the kernels (warmup.py, group "arrow").
+@functools.lru_cache(maxsize=None)
+def _lapack_py(name: str, nargs: int):
+    import ctypes
+    return ctypes.CFUNCTYPE(None, *([ctypes.c_int64] * nargs))(
+        get_cython_function_address("scipy.linalg.cython_lapack", name))
+
+
+def _band_factor_py(buf, off, ldab, m, kl, ku, ipiv, piv_off, iw):
+    iw[0], iw[1], iw[2], iw[3], iw[4] = m, m, kl, ku, ldab
+    w = iw.ctypes.data
+    _lapack_py("dgbtrf", 8)(w + I0, w + I1, w + I2, w + I3, buf.ctypes.data + 8 * off, w + I4,
+                            ipiv.ctypes.data + 4 * piv_off, w + INFO)
+    return int(iw[5])
+
+
+def _band_solve_py(buf, off, ldab, m, kl, ku, ipiv, piv_off, rhs, rhs_off, nrhs, iw):
+    iw[0], iw[1], iw[2], iw[3], iw[4], iw[6] = m, kl, ku, nrhs, ldab, m
+    iw[7] = 78
+    w = iw.ctypes.data
+    _lapack_py("dgbtrs", 11)(w + TRANS, w + I0, w + I1, w + I2, w + I3, buf.ctypes.data + 8 * off, w + I4,
+                             ipiv.ctypes.data + 4 * piv_off, rhs.ctypes.data + 8 * rhs_off, w + I6, w + INFO)
+
+
+def _dots(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(len(rows), len(cols)) sums of products of their rows, each summed left to right from 0.0 (as a loop
+    ``acc += a[i] * b[i]`` does)."""
+    prods = rows[:, None, :] * cols[None, :, :]
+    acc = np.zeros(prods.shape[:2] + (prods.shape[2] + 1,))
+    acc[:, :, 1:] = prods
+    return np.add.accumulate(acc, axis=2)[:, :, -1]
+
+
+def _arrow_factor_py(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C_off, cc_ptr, cc, cr_ptr, cr,
+                     D_off, nc, ipiv, piv_ptr, Y, Y_off, core_piv, iw):
+    """:func:`_arrow_factor`, interpreted."""
+    buf[:] = 0.0
+    buf[dest] = data
+    for i in range(ab_off.shape[0]):
+        m = int(ab_cols[i])
+        p0 = int(piv_ptr[i])
+        if _band_factor_py(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, iw) != 0:
+            return i + 1
+        ncc = int(cc_ptr[i + 1] - cc_ptr[i])
+        ncr = int(cr_ptr[i + 1] - cr_ptr[i])
+        y0 = int(Y_off[i])
+        Y[y0: y0 + m * ncc] = buf[B_off[i]: B_off[i] + m * ncc]
+        if ncc:
+            _band_solve_py(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, Y, y0, ncc, iw)
+        if ncr and ncc:
+            c0 = int(C_off[i])
+            acc = _dots(buf[c0: c0 + ncr * m].reshape(ncr, m), Y[y0: y0 + ncc * m].reshape(ncc, m))
+            rows, cols = cr[cr_ptr[i]: cr_ptr[i + 1]], cc[cc_ptr[i]: cc_ptr[i + 1]]
+            buf[D_off + rows[:, None] * nc + cols[None, :]] -= acc
+    iw[0], iw[1], iw[2] = nc, nc, nc
+    w = iw.ctypes.data
+    _lapack_py("dgetrf", 6)(w + I0, w + I1, buf.ctypes.data + 8 * D_off, w + I2, core_piv.ctypes.data, w + INFO)
+    return -1 if iw[5] != 0 else 0
+
+
+def _arrow_solve_py(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_ptr, cr, D_off, nc, ipiv, piv_ptr,
+                    Y, Y_off, core_piv, chain_dofs, core_dofs, b, x, rhs, z, iw):
+    """:func:`_arrow_solve`, interpreted."""
+    rhs[:] = b[core_dofs]
+    for i in range(ab_off.shape[0]):
+        m = int(ab_cols[i])
+        z0 = int(piv_ptr[i])
+        z[z0: z0 + m] = b[chain_dofs[z0: z0 + m]]
+        _band_solve_py(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, z0, z, z0, 1, iw)
+        ncr = int(cr_ptr[i + 1] - cr_ptr[i])
+        if ncr:
+            c0 = int(C_off[i])
+            rhs[cr[cr_ptr[i]: cr_ptr[i + 1]]] -= _dots(buf[c0: c0 + ncr * m].reshape(ncr, m),
+                                                       z[None, z0: z0 + m])[:, 0]
+    iw[0], iw[1], iw[2], iw[3] = nc, 1, nc, nc
+    iw[7] = 84
+    w = iw.ctypes.data
+    _lapack_py("dgetrs", 9)(w + TRANS, w + I0, w + I1, buf.ctypes.data + 8 * D_off, w + I2, core_piv.ctypes.data,
+                            rhs.ctypes.data, w + I3, w + INFO)
+    x[core_dofs] = rhs
+    for i in range(ab_off.shape[0]):
+        m = int(ab_cols[i])
+        z0 = int(piv_ptr[i])
+        y0 = int(Y_off[i])
+        acc = z[z0: z0 + m].copy()
+        for k in range(int(cc_ptr[i + 1] - cc_ptr[i])):
+            acc -= Y[y0 + k * m: y0 + (k + 1) * m] * rhs[cc[cc_ptr[i] + k]]
+        x[chain_dofs[z0: z0 + m]] = acc
+
+
 class SparseLU:
     name = "splu"
 
@@ -173,6 +270,7 @@ class SparseLU:
 
     def factor(self, data: np.ndarray) -> None:
         try:
+            import scipy.sparse.linalg as spla    # (here: a device that never uses it does not import it)
             self._lu = spla.splu(self.pattern.matrix(data), permc_spec="COLAMD")
         except RuntimeError as exc:
             raise SingularJacobian(str(exc)) from None
@@ -266,9 +364,10 @@ class ArrowSolver:
 
     def factor(self, data: np.ndarray) -> None:
         k = self._k
-        bad = _arrow_factor(data, self.dest, self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"],
-                            self._B_off, k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"],
-                            self._ipiv, self._piv_ptr, self._Y, self._Y_off, self._core_piv, self._iw)
+        factor = _arrow_factor_py if deferred("arrow") else _arrow_factor
+        bad = factor(data, self.dest, self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"],
+                     self._B_off, k["C_off"], k["cc_ptr"], k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"],
+                     self._ipiv, self._piv_ptr, self._Y, self._Y_off, self._core_piv, self._iw)
         if bad > 0:
             raise SingularJacobian(f"flagellum block {bad - 1} is singular")
         if bad < 0:
@@ -277,10 +376,11 @@ class ArrowSolver:
     def solve(self, b: np.ndarray) -> np.ndarray:
         k = self._k
         x = np.empty(self.ndof)
-        _arrow_solve(self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
-                     k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"], self._ipiv, self._piv_ptr, self._Y,
-                     self._Y_off, self._core_piv, self._chain_dofs, self._core, np.ascontiguousarray(b), x,
-                     self._rhs, self._z, self._iw)
+        solve = _arrow_solve_py if deferred("arrow") else _arrow_solve
+        solve(self._buf, k["ab_off"], k["ab_rows"], k["ab_cols"], k["kl"], k["ku"], k["C_off"], k["cc_ptr"],
+              k["cc"], k["cr_ptr"], k["cr"], k["D_off"], k["nc"], self._ipiv, self._piv_ptr, self._Y,
+              self._Y_off, self._core_piv, self._chain_dofs, self._core, np.ascontiguousarray(b), x,
+              self._rhs, self._z, self._iw)
         return x
 
 

@@ -41,15 +41,28 @@ from .linsolve import ArrowSolver
 KERNELS = (
     ("frames", "_trial_frames", "- f2 i2 f2 f2 i2 f2 f1 f2 f1 f2 f2 f1"),
     ("elastic", "_stretch", "- f2 f1 f1 f1 i2 i2 f1 f1 b"),
-    ("elastic", "_bend_twist", "- f2 f1 f2 f2 f1 f2 f2 f1 i2 i2 f2 f1 f2 f1 f1 f1 i2 i2 i f f2 f2 f1 f1 b"),
+    ("elastic", "_bend_twist_local", "- f2 f1 f2 f2 f1 i2 i2 f2 f1 f2 f1 f1 f1 i f f2 f2 f2 f2 b"),
+    ("elastic", "_bend_twist_global", "- f2 f2 f1 i2 f2 i2 i2 f2 f2 f1 f1 b"),
     ("effects", "rft", "- f2 f1 f i1 i1 i1 f1 f f i2 f1 f1 i3 i3 i3 b"),
     ("elastic", "tangent_torque", "- f2 f2 f1 i f f i1 f1 f1 i1 i1 b"),
     ("linsolve", "_arrow_factor", "i f1 i1 f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 n1"),
     ("linsolve", "_arrow_solve", "- f1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i1 i i n1 i1 f1 i1 n1 i1 i1 f1 f1 f1 f1 n1"),
 )
-FRAMES, STRETCH, BEND_TWIST, RFT_FORCE, TANGENT_TORQUE, FACTOR, SOLVE = range(len(KERNELS))
-_trial_frames_at, _stretch_at, _bend_twist_at, _rft_at, _tangent_torque_at, _factor_at, _solve_at = (
-    function_at(spec) for _, _, spec in KERNELS)
+FRAMES, STRETCH, BT_LOCAL, BT_GLOBAL, RFT_FORCE, TANGENT_TORQUE, FACTOR, SOLVE = range(len(KERNELS))
+(_trial_frames_at, _stretch_at, _bt_local_at, _bt_global_at, _rft_at, _tangent_torque_at, _factor_at,
+ _solve_at) = (function_at(spec) for _, _, spec in KERNELS)
+
+
+@stage
+def _bend_twist(fns, x, theta, t, tc, length, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar, tbar, kb, kt, hdofs,
+                hslots, twist_hinge, angle, S, W, r, J, want_hessian):
+    """The bend-twist springs' two kernels in order (ElasticModel._bend_twist's calls), with their work arrays."""
+    H = hnodes.shape[0]
+    grad = np.empty((H, 11))
+    Hs = np.empty((H, 121)) if want_hessian else np.empty((0, 121))
+    _bt_local_at(fns[BT_LOCAL])(x, theta, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar, tbar, kb, kt, twist_hinge,
+                                angle, S, W, grad, Hs, want_hessian)
+    _bt_global_at(fns[BT_GLOBAL])(t, tc, length, hinge_edges, sign, hdofs, hslots, grad, Hs, r, J, want_hessian)
 
 
 def kernel_addresses(model) -> np.ndarray:
@@ -131,8 +144,8 @@ def _trial(fns, q, N, dv, v0, da, a0, angle, twist_hinge, order, edges, hinge_ed
                 r[j1] += c * v[j1]
                 r[j2] += c * v[j2]
     _stretch_at(fns[STRETCH])(t, length, rest, EA, sdofs, sslots, r, e0, False)
-    _bend_twist_at(fns[BEND_TWIST])(x, q[3 * N:], t, tc, length, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar,
-                                    tbar, kb, kt, hdofs, hslots, twist_hinge, angle, S, W, r, e0, False)
+    _bend_twist(fns, x, q[3 * N:], t, tc, length, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar, tbar, kb, kt,
+                hdofs, hslots, twist_hinge, angle, S, W, r, e0, False)
     for f in fixed:
         r[f] = 0.0
 
@@ -173,8 +186,8 @@ def _jacobian(fns, q, N, dv, da, angle, twist_hinge, order, hinge_edges, sign, t
                         vj = v[gy_dofs[k, j]]
                         J[gy_slots[9 * k + 3 * i + j]] += c * ((1.0 if i == j else 0.0) - vi * vj / s2) * dv
     _stretch_at(fns[STRETCH])(t, length, rest, EA, sdofs, sslots, rz, J, True)
-    _bend_twist_at(fns[BEND_TWIST])(x, q[3 * N:], t, tc, length, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar,
-                                    tbar, kb, kt, hdofs, hslots, twist_hinge, angle, S, W, rz, J, True)
+    _bend_twist(fns, x, q[3 * N:], t, tc, length, d1, d2, rt, hnodes, hinge_edges, sign, beta, kbar, tbar, kb, kt,
+                hdofs, hslots, twist_hinge, angle, S, W, rz, J, True)
     for s in fix_slots:
         J[s] = 0.0
     for s in fix_diag:

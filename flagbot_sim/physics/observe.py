@@ -26,6 +26,7 @@ import numpy as np
 from .. import world
 from .frames import angle3, material3
 from .model import RobotModel, State
+from .tiers import tiered
 
 #: |v| below this (m/s) is "not moving": its relative change is not meaningful
 V_FLOOR = 1.0e-9
@@ -255,7 +256,8 @@ class Observer:
     def _spin_increment(self, edge: int, old: State, new: State, axis: np.ndarray) -> float:
         k = 3 * self.net.n_nodes + edge
         u, w = old.frames.d1[edge], new.frames.d1[edge]
-        return float(new.q[k] - old.q[k] + angle3(u[0], u[1], u[2], w[0], w[1], w[2], axis[0], axis[1], axis[2]))
+        turn = tiered("time_stepping", angle3)(u[0], u[1], u[2], w[0], w[1], w[2], axis[0], axis[1], axis[2])
+        return float(new.q[k] - old.q[k] + turn)
 
     def corotating_tip(self, state: State) -> np.ndarray:
         """Tip of the (first) flagellum in the frame turning with the clamp: clamp at (0, R_d, 0)."""

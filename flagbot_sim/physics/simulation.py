@@ -94,6 +94,8 @@ class Simulation:
         """Advance by dt (default: the scene's time.dt; with error control, one step of the size it picks, never
         past t_end). Raises StepFailed and keeps the state if Newton fails. (``_resume`` / ``_python_first``:
         a step the compiled steps of :meth:`advance` began, Stepper.step's.)"""
+        if warmup.swap_in():                # a first run's background compile has delivered the compiled step
+            self.stepper.use_compiled()
         w0 = time.perf_counter()
         if dt is None and self.stepper.adaptive:
             new, stats = self.stepper.step_adaptive(self.state, t_end, self._omega, python_first=_python_first)
@@ -128,6 +130,8 @@ class Simulation:
         applies (its kernel loaded: a first run compiles it in the background), else step by step. It also
         stops after a step at which the steady-state rule samples. Returns the steps taken (0: t_stop reached).
         Raises StepFailed and keeps the state of the steps before the failed one."""
+        if warmup.swap_in():                # a first run's background compile has delivered the compiled step
+            self.stepper.use_compiled()
         st = self.stepper
         if max_steps <= 0 or not self.time < t_stop:
             return 0

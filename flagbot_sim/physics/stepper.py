@@ -26,6 +26,10 @@ from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State, StepPlan
 from .newton import (CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, error_sums,
                      residual_norms, robot_pose, supported)
+from .tiers import tiered
+
+#: the kernel group of the predictor and the stepper's sums (their interpreted twins while it is deferred)
+TS = "time_stepping"
 
 
 class StepFailed(RuntimeError):
@@ -234,8 +238,8 @@ def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: i
     x1 = state.q_prev[: 3 * N].reshape(N, 3)
     x2 = state.q_prev2[: 3 * N].reshape(N, 3) if second else x1
     i0, i1, i2 = axis_nodes
-    _predict_cylindrical(x, x1, x2, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2,
-                         q[: 3 * N].reshape(N, 3))
+    tiered(TS, _predict_cylindrical)(x, x1, x2, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2,
+                                     q[: 3 * N].reshape(N, 3))
     return q
 
 
@@ -297,9 +301,17 @@ class Stepper:
         #: physics.warmup, which compiles it in the background on a first run), or None, also where it does not
         #: apply (scipy's sparse LU, an effect without a compiled term): then the Python loop of _attempt runs,
         #: with the same numbers to the last bit
-        self._newton = (StepNewton(model, self.solver, self._axis_nodes, self._rim, self._kept,
-                                   self._kept_pose.reshape(9), _predict_cylindrical)
-                        if compiled and supported(model, self.solver) else None)
+        self._newton = None
+        if compiled:
+            self.use_compiled()
+
+    def use_compiled(self) -> None:
+        """Step with the compiled Newton solve from now on, where it applies (its kernels loaded: at
+        construction, or mid-run once the background compile has delivered them, warmup.swap_in). The two share
+        the kept factorisation and the pose it was made at, so the switch changes no number."""
+        if self._newton is None and supported(self.model, self.solver):
+            self._newton = StepNewton(self.model, self.solver, self._axis_nodes, self._rim, self._kept,
+                                      self._kept_pose.reshape(9), _predict_cylindrical)
 
     @property
     def adaptive(self) -> bool:
@@ -456,7 +468,7 @@ class Stepper:
 
     def _error_sums(self, err: np.ndarray, q_new: np.ndarray, q_old: np.ndarray) -> tuple[float, float, int]:
         """(|err|^2, |q_new - q_old|^2, count) over the free nodes and the rigid parts' twist angles (in metres)."""
-        e2, d2 = error_sums(self._norm_weights, err, q_new, q_old)    # the compiled steps' own sums (_advance)
+        e2, d2 = tiered(TS, error_sums)(self._norm_weights, err, q_new, q_old)   # the compiled steps' own sums
         return e2, d2, self._norm_count
 
     def error_norm(self, err: np.ndarray, q_new: np.ndarray, q_old: np.ndarray, gain: float = 1.0) -> float:
@@ -515,7 +527,7 @@ class Stepper:
         that turns with the robot: what relates the Jacobian of two configurations of a turning robot."""
         i0, _, i2 = self._axis_nodes
         P = np.empty(9)
-        robot_pose(q, i0, i2, self._rim, P)
+        tiered(TS, robot_pose)(q, i0, i2, self._rim, P)
         return P.reshape(3, 3)
 
     def _rotated_solve(self, r: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -613,12 +625,12 @@ class Stepper:
                 return self._accept(state, plan, ctx, stats, it)
             if it == self.max_iterations:
                 return None
-            merit0 = residual_norms(r, self._scale)[1]
+            merit0 = tiered(TS, residual_norms)(r, self._scale)[1]
             if chord:
                 dq = -self._rotated_solve(r, q)
                 q_try = q + dq
                 ctx_try, r_try = self._trial(q_try, state, plan)
-                m_max, m = residual_norms(r_try, self._scale)
+                m_max, m = tiered(TS, residual_norms)(r_try, self._scale)
                 # a correction that reaches the tolerance is taken whatever its contraction (a residual already
                 # near the tolerance cannot shrink 4x above round-off: BDF2's predictor often starts there)
                 if np.all(np.isfinite(dq)) and math.isfinite(m) and (m <= CHORD_CONTRACTION * merit0 or
@@ -646,7 +658,7 @@ class Stepper:
             while True:
                 q_try = q + alpha * dq
                 ctx_try, r_try = self._trial(q_try, state, plan)
-                m = residual_norms(r_try, self._scale)[1]
+                m = tiered(TS, residual_norms)(r_try, self._scale)[1]
                 if math.isfinite(m) and m < (1.0 - 1e-4 * alpha) * merit0:
                     break
                 # Watchdog: a full step along a rigid rotation stretches the stiff parts by R*angle^2/2, so the

@@ -35,6 +35,8 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from .tiers import DEFERRED, deferred  # noqa: F401  (deferred: part of this module's API)
+
 #: groups loaded (compiled or read from the cache) in this process
 _LOADED: set[str] = set()
 
@@ -85,21 +87,38 @@ def _warm_stretch() -> None:
         _stretch(t, length, net.edge_rest_length, net.EA, stretch, slots, np.zeros(net.ndof), J, len(J) > 0)
 
 
-def _warm_bend_twist() -> None:
-    """The bend-twist springs' residual and Jacobian (and so their strains: model set-up, motor torque)."""
-    from .elastic import _bend_twist, spring_dofs
+def _bend_twist_arguments():
+    """The bend-twist kernels' arguments on the tiny network (the types the model passes)."""
+    from .elastic import spring_dofs
     net, q, x, t, length, d1, d2 = _tiny_network()
     _, hinge = spring_dofs(net)
     H = net.n_hinges
-    theta = q[3 * net.n_nodes:]
-    rt, beta, tau_bar = np.zeros(H), np.zeros(H), np.zeros(H)
-    kappa_bar = np.zeros((H, 2))
-    k_bend, k_twist = net.EI / net.voronoi, net.GJ / net.voronoi
-    slots = np.zeros((H, 121), np.int64)
+    return dict(net=net, x=x, theta=q[3 * net.n_nodes:], t=t, length=length, d1=d1, d2=d2, rt=np.zeros(H),
+                beta=np.zeros(H), tau_bar=np.zeros(H), kappa_bar=np.zeros((H, 2)), k_bend=net.EI / net.voronoi,
+                k_twist=net.GJ / net.voronoi, dofs=hinge, slots=np.zeros((H, 121), np.int64), S=np.empty((H, 6)),
+                W=np.empty((H, 3)), grad=np.zeros((H, 11)), Hs=np.zeros((H, 121)))
+
+
+def _warm_bend_twist() -> None:
+    """The bend-twist springs in every hinge's local DOFs: strains, moments, gradient and Hessian (and so their
+    strains: model set-up, motor torque)."""
+    from .elastic import _bend_twist_local
+    a = _bend_twist_arguments()
+    net = a["net"]
+    for want in (False, True):
+        _bend_twist_local(a["x"], a["theta"], a["d1"], a["d2"], a["rt"], net.hinge_nodes, net.hinge_edges,
+                          net.hinge_sign, a["beta"], a["kappa_bar"], a["tau_bar"], a["k_bend"], a["k_twist"],
+                          int(net.motor_hinge), 0.0, a["S"], a["W"], a["grad"], a["Hs"], want)
+
+
+def _warm_bend_twist_global() -> None:
+    """The bend-twist springs' gradient and Hessian into the global DOFs, through the frames' transport."""
+    from .elastic import _bend_twist_global
+    a = _bend_twist_arguments()
+    net = a["net"]
     for J in (np.empty(0), np.zeros(1)):
-        _bend_twist(x, theta, t, t, length, d1, d2, rt, net.hinge_nodes, net.hinge_edges, net.hinge_sign, beta,
-                    kappa_bar, tau_bar, k_bend, k_twist, hinge, slots, int(net.motor_hinge), 0.0, np.empty((H, 6)),
-                    np.empty((H, 3)), np.zeros(net.ndof), J, len(J) > 0)
+        _bend_twist_global(a["t"], a["t"], a["length"], net.hinge_edges, net.hinge_sign, a["dofs"], a["slots"],
+                           a["grad"], a["Hs"], np.zeros(net.ndof), J, len(J) > 0)
 
 
 def _warm_time_stepping() -> None:
@@ -201,25 +220,42 @@ class Group:
     #: the split between the two processes and the estimate of the time left use it, so it need not be exact
     weight: float
     doc: str
-    #: a speed-up with a slower equivalent (the compiled Newton step: the stepper's Python loop gives the same
-    #: numbers to the last bit): a scene's run never waits for its compile; when its cache is cold, a background
-    #: process compiles it for the runs after this one (see ensure_compiled)
+    #: kernels with a slower equivalent that gives the same numbers to the last bit (the compiled Newton step:
+    #: the stepper's Python loop; the predictor, the observer's sums, the arrow solver: their interpreted twins):
+    #: a scene's run never waits for their compile; when their cache is cold, a background process compiles
+    #: them and the run switches to them once they are in the cache (see ensure_compiled, swap_in)
     background: bool = False
 
 
 def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float, background: bool = False) -> Group:
-    return Group(warm.__name__.removeprefix("_warm_"), warm, kernels, weight, (warm.__doc__ or "").strip(),
-                 background)
+    return Group(warm.__name__.removeprefix("_warm_"), _compiled_calls(warm), kernels, weight,
+                 (warm.__doc__ or "").strip(), background)
+
+
+def _compiled_calls(warm: Callable[[], None]) -> Callable[[], None]:
+    """``warm`` with the deferred groups' callers calling the compiled kernels while it runs: a warm-up exists to
+    compile or load them (a background process forked from a first run inherits that run's deferred groups, and
+    swap_in loads them while they are still deferred)."""
+    @functools.wraps(warm)
+    def run() -> None:
+        saved = set(DEFERRED)
+        DEFERRED.clear()
+        try:
+            warm()
+        finally:
+            DEFERRED.update(saved)
+    return run
 
 
 #: every kernel group, by name. Effects name theirs in ``Effect.kernel_groups``.
 GROUPS: dict[str, Group] = {g.name: g for g in (
     _group(_warm_frames, ("frames._trial_frames",), 0.45),
     _group(_warm_stretch, ("elastic._stretch",), 0.25),
-    _group(_warm_bend_twist, ("elastic._bend_twist",), 3.4),
+    _group(_warm_bend_twist, ("elastic._bend_twist_local",), 2.3),
+    _group(_warm_bend_twist_global, ("elastic._bend_twist_global",), 1.2),
     _group(_warm_time_stepping, ("stepper._predict_cylindrical", "frames.angle3", "newton.residual_norms",
-                                    "newton.robot_pose", "newton.error_sums"), 0.65),
-    _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.15),
+                                    "newton.robot_pose", "newton.error_sums"), 0.65, background=True),
+    _group(_warm_arrow, ("linsolve._arrow_factor", "linsolve._arrow_solve"), 1.15, background=True),
     _group(_warm_rft, ("effects.rft",), 0.35),
     _group(_warm_head_torque, ("elastic.tangent_torque",), 0.45),
     _group(_warm_clamp, ("frames.twist_for_director",), 0.3),
@@ -228,7 +264,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
 )}
 
 #: what every model needs: its frames and its springs
-MODEL_GROUPS = ("frames", "stretch", "bend_twist")
+MODEL_GROUPS = ("frames", "stretch", "bend_twist", "bend_twist_global")
 #: the helper process's start in the units of ``Group.weight``, forked or as a fresh interpreter (which imports
 #: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s: the rest of
 #: its 0.4 is what several small groups cost together above their weights, each measured alone (design 1's six
@@ -295,10 +331,12 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
     ``notify`` receives the lines shown while the cache is cold (default: stderr): one that says the kernels
     are being compiled, then one per finished group with the seconds so far and an estimate of the time left.
 
-    A background group (``Group.background``) among the ``groups`` a caller names is loaded if its cache is
-    warm; if it is cold this process goes on without it and a background process compiles it into the cache
-    (after this process's own compile), for the next run. With ``groups=None`` (``flagbot compile``, dev.py)
-    every group is compiled here."""
+    Background groups (``Group.background``: the time-stepping kernels that have a twin, the same numbers
+    slower) among the ``groups`` a caller names are loaded if their cache is warm. If any is cold, this process
+    goes on without them (:func:`deferred` is true for each: their callers use the interpreted twins) and a
+    background process compiles the cold ones into the cache (after this process's own compile); the
+    simulation swaps the compiled kernels in as soon as they are there (:func:`swap_in`), and the next run loads
+    them. With ``groups=None`` (``flagbot compile``, dev.py) every group is compiled here."""
     from numba.core import config
     wanted = [g for g in (GROUPS if groups is None else dict.fromkeys(groups)) if g not in _LOADED]
     if not wanted:
@@ -309,6 +347,8 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
         return time.perf_counter() - t0
     cold = [g for g in wanted if not cache_is_warm([g])]
     later = [g for g in cold if groups is not None and GROUPS[g].background]
+    if later:                                     # the compiled step calls the others: all of them, or none
+        later = [g for g in wanted if GROUPS[g].background]
     cold = [g for g in cold if g not in later]
     if cold:
         _Compile(cold, notify or _stderr, t0).run()
@@ -317,10 +357,40 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
             GROUPS[g].warm()
             _LOADED.add(g)
     if later:
-        (notify or _stderr)(f"flagbot_sim:   {', '.join(later)}: compiling in the background (low priority, a few "
-                            "seconds of one core) for the next run; this run steps without it, same numbers")
-        _compile_in_background(later)
+        DEFERRED.update(later)
+        compile_later = [g for g in later if not cache_is_warm([g])]
+        (notify or _stderr)(f"flagbot_sim:   {', '.join(compile_later)}: compiling in the background (low "
+                            "priority, one core) while this run starts with the same steps interpreted, the same "
+                            "numbers; the run switches to them when they are ready, and later runs load them")
+        _compile_in_background(compile_later)
     return time.perf_counter() - t0
+
+
+#: when swap_in next looks at the cache (perf_counter seconds)
+_next_look = 0.0
+#: how often swap_in looks (seconds): each look reads a few index files of the cache (~1 ms)
+LOOK_EVERY = 0.5
+
+
+def swap_in() -> bool:
+    """If groups are deferred and the background compile has put all of them in the cache, load them (a few
+    hundredths of a second) and return True: the caller switches to the compiled step. Looks at the cache at
+    most every LOOK_EVERY seconds; cheap to call at every step."""
+    global _next_look
+    if not DEFERRED:
+        return False
+    now = time.perf_counter()
+    if now < _next_look:
+        return False
+    _next_look = now + LOOK_EVERY
+    groups = [g for g in GROUPS if g in DEFERRED]
+    if not cache_is_warm(groups):
+        return False
+    for g in groups:
+        GROUPS[g].warm()
+        _LOADED.add(g)
+    DEFERRED.clear()
+    return True
 
 
 #: the background compile's lock file, in the kernel cache's own directory: held while it compiles
