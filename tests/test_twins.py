@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from flagbot_sim.physics import Simulation, warmup
+from flagbot_sim.physics import jit
 from flagbot_sim.physics.jit import interpreted
 from flagbot_sim.physics.linsolve import ArrowSolver, flagellum_chains
 from flagbot_sim.physics.newton import error_sums, residual_norms
@@ -21,14 +22,22 @@ def same(a, b) -> bool:
 
 
 @pytest.fixture
-def deferred():
-    """The background groups deferred, as in a first run while their compile is under way."""
-    warmup.ensure_compiled(groups=BACKGROUND)         # compiled and loaded: the twins are compared against them
+def compiled():
+    """Every group compiled and loaded (the twins are compared against them), none deferred; the deferral as it
+    was afterwards."""
+    warmup.ensure_compiled()
     saved = set(warmup.DEFERRED)
-    warmup.DEFERRED.update(BACKGROUND)
+    warmup.DEFERRED.clear()
     yield
     warmup.DEFERRED.clear()
     warmup.DEFERRED.update(saved)
+
+
+@pytest.fixture
+def deferred(compiled):
+    """The background groups deferred, as in a first run while their compile is under way."""
+    warmup.DEFERRED.update(BACKGROUND)
+    yield
 
 
 def test_an_interpreted_twin_calls_no_compiled_code_and_gives_the_same_bits():
@@ -46,7 +55,7 @@ def test_an_interpreted_twin_calls_no_compiled_code_and_gives_the_same_bits():
 
 
 @pytest.mark.parametrize("scene,overrides", [("design1", ["robot.n_flagella=3"]), ("design2", ["robot.n_flagella=5"])])
-def test_the_arrow_solvers_twin_writes_the_same_factors_and_solutions(scene, overrides):
+def test_the_arrow_solvers_twin_writes_the_same_factors_and_solutions(compiled, scene, overrides):
     sim = Simulation(load_scene(scene, overrides))
     sim.run(0.2)
     m, s, plan, q = newton_point(sim, noise_seed=3)
@@ -57,6 +66,7 @@ def test_the_arrow_solvers_twin_writes_the_same_factors_and_solutions(scene, ove
         arrow = ArrowSolver(m.pattern, flagellum_chains(m.net))
         if twin:
             warmup.DEFERRED.add("arrow")
+        assert warmup.deferred("arrow") is twin and warmup.loaded("arrow")
         try:
             arrow.factor(data)
             x = arrow.solve(r)
@@ -70,28 +80,34 @@ def test_the_arrow_solvers_twin_writes_the_same_factors_and_solutions(scene, ove
     assert np.abs(A @ x2 - r).max() <= 1e-10 * np.abs(r).max()      # and it is a solution
 
 
-def _run(T: float, swap_at: int | None = None, twins: bool = False):
-    sim = Simulation(load_scene("design1", ["robot.n_flagella=3"]))
+def _run(T: float, overrides: list[str], swap_at: int | None = None, twins: bool = False):
+    sim = Simulation(load_scene("design1", ["robot.n_flagella=3", *overrides]))
     if twins:
         sim.stepper._newton = None                        # as constructed while the newton group is deferred
     n = 0
     while sim.time < T - 1e-9:
         if swap_at is not None and n >= swap_at and warmup.DEFERRED:
-            warmup.DEFERRED.clear()                      # what swap_in does once the cache has them
-            sim.stepper.use_compiled()
+            warmup.DEFERRED.clear()                       # what swap_in does once the cache has them
         n += sim.advance(1 if warmup.DEFERRED else 50, t_stop=T - 1e-9)
     return sim
 
 
-def test_a_run_on_the_twins_and_one_that_switches_mid_run_match_the_compiled_run_bit_for_bit(deferred, monkeypatch):
+@pytest.mark.parametrize("overrides", [[], ["time.rtol=1e-3"]], ids=["fixed-dt", "error-control"])
+def test_a_run_on_the_twins_and_one_that_switches_mid_run_match_the_compiled_run_bit_for_bit(deferred, monkeypatch,
+                                                                                             overrides):
     monkeypatch.setattr(warmup, "swap_in", lambda: False)     # the cache holds them: the test decides when
-    twins = _run(0.4, twins=True)
+    asked = set()
+    twin_of = jit.interpreted
+    monkeypatch.setattr(jit, "interpreted", lambda d: asked.add(d.py_func.__name__) or twin_of(d))
+    twins = _run(0.4, overrides, twins=True)
     assert twins.stepper._newton is None
+    # every kernel of the deferred groups a step calls from Python was called as its twin
+    assert {"_predict_cylindrical", "residual_norms", "error_sums", "robot_pose", "angle3"} <= asked, asked
     warmup.DEFERRED.update(BACKGROUND)
-    switched = _run(0.4, swap_at=15, twins=True)
+    switched = _run(0.4, overrides, swap_at=15, twins=True)
     assert switched.stepper._newton is not None           # it did switch, and stepped compiled afterwards
     warmup.DEFERRED.clear()
-    compiled = _run(0.4)
+    compiled = _run(0.4, overrides)
     assert compiled.stepper._newton is not None
     for sim in (twins, switched):
         assert sim.steps == compiled.steps
@@ -103,11 +119,27 @@ def test_a_run_on_the_twins_and_one_that_switches_mid_run_match_the_compiled_run
 
 def test_swap_in_waits_for_the_cache_and_then_loads_the_groups(deferred, monkeypatch):
     warmup.DEFERRED.intersection_update({"arrow"})
+    loads = []                        # at each arrow factorisation of a warm-up: was it deferred in there?
+    factor = ArrowSolver.factor
+    monkeypatch.setattr(ArrowSolver, "factor", lambda self, data: loads.append(warmup.deferred("arrow")) or
+                        factor(self, data))
     monkeypatch.setattr(warmup, "_next_look", 0.0)
     monkeypatch.setattr(warmup, "cache_is_warm", lambda groups=None: False)
-    assert warmup.swap_in() is False and warmup.deferred("arrow")          # not in the cache yet
+    assert warmup.swap_in() is False and warmup.deferred("arrow") and loads == []     # not in the cache yet
     monkeypatch.setattr(warmup, "cache_is_warm", lambda groups=None: True)
     assert warmup.swap_in() is False and warmup.deferred("arrow")          # and it does not look again at once
     monkeypatch.setattr(warmup, "_next_look", 0.0)
-    assert warmup.swap_in() is True and not warmup.deferred("arrow") and warmup.loaded("arrow")
+    assert warmup.swap_in() is True and not warmup.deferred("arrow")
+    assert loads == [False]           # loaded once, its warm-up calling the compiled kernels, not the twins
     assert warmup.swap_in() is False                                       # nothing left to swap
+
+
+def test_every_simulation_built_while_deferred_switches_not_only_the_first(deferred, monkeypatch):
+    a = Simulation(load_scene("design1"))
+    b = Simulation(load_scene("design1"))
+    a.stepper._newton = b.stepper._newton = None          # as constructed while the newton group is deferred
+    monkeypatch.setattr(warmup, "_next_look", 0.0)        # the cache is warm: the first look swaps
+    a.step()                                              # a's step loads the groups ...
+    b.step()                                              # ... and b, built deferred too, switches as well
+    assert not warmup.DEFERRED
+    assert a.stepper._newton is not None and b.stepper._newton is not None

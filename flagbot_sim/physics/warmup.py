@@ -35,7 +35,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from .tiers import DEFERRED, deferred  # noqa: F401  (deferred: part of this module's API)
+from .tiers import DEFERRED, compiled_calls, deferred  # noqa: F401  (deferred: part of this module's API)
 
 #: groups loaded (compiled or read from the cache) in this process
 _LOADED: set[str] = set()
@@ -233,17 +233,12 @@ def _group(warm: Callable[[], None], kernels: tuple[str, ...], weight: float, ba
 
 
 def _compiled_calls(warm: Callable[[], None]) -> Callable[[], None]:
-    """``warm`` with the deferred groups' callers calling the compiled kernels while it runs: a warm-up exists to
-    compile or load them (a background process forked from a first run inherits that run's deferred groups, and
-    swap_in loads them while they are still deferred)."""
+    """``warm`` with the deferred groups' callers calling the compiled kernels while it runs (tiers.compiled_calls):
+    a warm-up exists to compile or load them."""
     @functools.wraps(warm)
     def run() -> None:
-        saved = set(DEFERRED)
-        DEFERRED.clear()
-        try:
+        with compiled_calls():
             warm()
-        finally:
-            DEFERRED.update(saved)
     return run
 
 
@@ -358,7 +353,7 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
             _LOADED.add(g)
     if later:
         DEFERRED.update(later)
-        compile_later = [g for g in later if not cache_is_warm([g])]
+        compile_later = [g for g in later if not cache_is_warm([g])] or later     # (warm since: swap_in loads)
         (notify or _stderr)(f"flagbot_sim:   {', '.join(compile_later)}: compiling in the background (low "
                             "priority, one core) while this run starts with the same steps interpreted, the same "
                             "numbers; the run switches to them when they are ready, and later runs load them")
@@ -399,7 +394,7 @@ BACKGROUND_LOCK = "flagbot_background.lock"
 
 def _compile_in_background(groups: list[str]) -> None:
     """Compile the groups into the cache in a detached, low-priority process that outlives this one if need be
-    (its output discarded; one at a time: a second finds the first's lock taken and ends at once)."""
+    (its output discarded; one at a time: a second waits for the first's lock, then compiles what is still cold)."""
     try:
         if _can_fork():
             pid = os.fork()
@@ -431,7 +426,8 @@ def _reap(pid: int) -> None:
 
 
 def _background(groups: list[str]) -> None:
-    """In the background process: compile the groups unless another process is at it already."""
+    """In the background process: after any other background compile into the same cache, the groups still
+    cold."""
     import fcntl
     os.nice(10)
     # inside the kernel cache directory itself (numba's __pycache__ beside the source, or the per-user cache): the
@@ -439,10 +435,9 @@ def _background(groups: list[str]) -> None:
     lock_dir = _dispatchers(groups)[0]._cache._cache_path
     os.makedirs(lock_dir, exist_ok=True)
     with open(os.path.join(lock_dir, BACKGROUND_LOCK), "w") as lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            return
+        # another process's background compile (other groups, perhaps): wait for it, then compile what it left
+        # cold; a run that deferred these groups swaps them in only once all are in the cache
+        fcntl.flock(lock, fcntl.LOCK_EX)
         with _fewer_collections():
             for g in groups:
                 if not cache_is_warm([g]):
