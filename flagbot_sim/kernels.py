@@ -57,3 +57,32 @@ def describe(seconds: float, compiled: bool) -> str:
     if compiled:
         return f"kernels compiled in {seconds:.1f} s (first run only: later runs load them from the cache)"
     return f"kernels loaded from the cache in {seconds:.1f} s (nothing to compile)"
+
+
+def compile_bytecode(root: str | None = None) -> int | None:
+    """Byte-compile the package's Python modules into their ``__pycache__``, as pip does when it installs a wheel;
+    returns how many were (re)written, or None if the package's directory is read-only.
+
+    An editable checkout run with PYTHONDONTWRITEBYTECODE set (as this project's shared machines are) never writes
+    them, and then every start compiles every module's source again: 0.14 s of imports against 0.05 s from the
+    bytecode, measured in a warm ``flagbot run design1`` (``-X importtime``, the package's own modules). Only
+    modules whose source is newer than their bytecode are written. ``root``: the package's directory (default: this
+    package's)."""
+    import compileall
+    import io
+    import os
+    from contextlib import redirect_stdout
+    root = root or os.path.dirname(os.path.abspath(__file__))
+    if not os.access(root, os.W_OK):
+        return None
+    before = {p: os.stat(p).st_mtime_ns for p in _bytecode_files(root)}
+    with redirect_stdout(io.StringIO()):
+        compileall.compile_dir(root, quiet=2)
+    after = {p: os.stat(p).st_mtime_ns for p in _bytecode_files(root)}
+    return sum(1 for p, t in after.items() if before.get(p) != t)
+
+
+def _bytecode_files(root: str) -> list[str]:
+    import glob
+    import os
+    return glob.glob(os.path.join(root, "**", "__pycache__", "*.pyc"), recursive=True)

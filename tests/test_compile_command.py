@@ -33,3 +33,25 @@ def test_compile_fills_an_empty_cache_then_a_run_starts_warm(tmp_path):
     run = flagbot("run", "design1", "--duration", "0.2", "--json")
     assert "compiling" not in run.stderr
     assert json.loads(run.stdout)["compile_seconds"] < compiled
+
+
+def test_compile_writes_the_python_bytecode_a_pip_install_would_and_only_what_is_stale(tmp_path):
+    import importlib.util
+    import time
+    from flagbot_sim.kernels import compile_bytecode
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    for f in (pkg / "__init__.py", pkg / "a.py", pkg / "sub" / "__init__.py", pkg / "sub" / "b.py"):
+        f.write_text("X = 1\n")
+    assert compile_bytecode(str(pkg)) == 4                  # written even where PYTHONDONTWRITEBYTECODE is set
+    assert os.path.exists(importlib.util.cache_from_source(str(pkg / "sub" / "b.py")))
+    assert compile_bytecode(str(pkg)) == 0                  # nothing stale: nothing written
+    time.sleep(0.01)
+    (pkg / "a.py").write_text("X = 2\n")
+    os.utime(pkg / "a.py", (time.time() + 5, time.time() + 5))   # (newer than its bytecode on any clock)
+    assert compile_bytecode(str(pkg)) == 1
+    pkg.chmod(0o555)
+    try:
+        assert os.access(pkg, os.W_OK) or compile_bytecode(str(pkg)) is None   # (root ignores the mode bits)
+    finally:
+        pkg.chmod(0o755)

@@ -227,8 +227,13 @@ def run(args) -> int:
     times = {"import": [], "warm": [], "cold": []}
     try:
         # fill the kernel cache (untimed) with every group, the compiled Newton step included: what a later run
-        # finds once its first run's background compile is done
+        # finds once its first run's background compile is done; and the package's Python bytecode, which a pip
+        # install writes and an editable checkout under PYTHONDONTWRITEBYTECODE never does (kernels.py), as the
+        # import it is compared with finds numpy's, scipy's and numba's
         time_process([*flagbot, "compile"], _env(NUMBA_CACHE_DIR=warm_cache))
+        from ..kernels import compile_bytecode
+        bytecode = "written by `flagbot compile`" if compile_bytecode() is not None else "read-only: as installed"
+        print(f"  (the package's Python bytecode: {bytecode}; cold and warm runs alike read it)")
         for _ in range(args.repeat):
             times["import"].append(time_process(import_cmd, _env()))
             times["warm"].append(time_process(warm_cmd, _env(NUMBA_CACHE_DIR=warm_cache)))

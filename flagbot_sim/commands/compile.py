@@ -1,4 +1,5 @@
-"""``flagbot compile``: every kernel of the simulator into numba's on-disk cache, now, with the time it took."""
+"""``flagbot compile``: every kernel of the simulator into numba's on-disk cache, now, with the time it took (and
+the package's Python bytecode, where nothing wrote it)."""
 from __future__ import annotations
 
 import os
@@ -16,11 +17,15 @@ def register(sub) -> None:
 
 
 def cmd_compile(args) -> int:
-    from ..kernels import compile_kernels, describe
+    from ..kernels import compile_bytecode, compile_kernels, describe
     cache = os.environ.get("NUMBA_CACHE_DIR", "").strip()
     print(f"flagbot compile: every kernel of the simulator, into numba's cache "
           f"({'NUMBA_CACHE_DIR=' + cache if cache else 'its default: beside the package, or a per-user directory when that is read-only'})",
           flush=True)
     seconds, compiled = compile_kernels()
     print(describe(seconds, compiled))
+    written = compile_bytecode()
+    if written:
+        print(f"python bytecode of {written} modules written (as a pip install writes it: later starts skip "
+              "compiling their source)")
     return 0

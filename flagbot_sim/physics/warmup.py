@@ -261,10 +261,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
 #: what every model needs: its frames and its springs
 MODEL_GROUPS = ("frames", "stretch", "bend_twist", "bend_twist_global")
 #: the helper process's start in the units of ``Group.weight``, forked or as a fresh interpreter (which imports
-#: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s: the rest of
-#: its 0.4 is what several small groups cost together above their weights, each measured alone (design 1's six
-#: besides bend_twist take as long as bend_twist in one process, where their weights add up to 94% of its)
-HELPER_START = {"fork": 0.4, "spawn": 1.1}
+#: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s; with 0.15 a cold
+#: design 1 splits as measured best (2026-12-07, the bend-twist springs in two groups: the helper's four groups
+#: then took 1.6 s of the 3.5 s compile to the first, the main process's bend_twist 3.05 s, so rft goes to the
+#: helper and stretch stays here; with 0.4 the main process finished ~0.4 s after the helper)
+HELPER_START = {"fork": 0.15, "spawn": 1.1}
 
 
 def groups_for(scene, time_stepping: bool = True) -> list[str]:
