@@ -18,8 +18,8 @@ loop over all hinges at once (the arrays of one stage are the input of the next)
     _change_variables   theta -> theta + Omega(x) applied to gradient and Hessian
     _scatter            into the residual vector and the CSC data array through slots built once
 
-and ``_bend_twist_local`` (the first five) and ``_bend_twist_global`` (the last three) run them. Energy, gradient and Hessian come from the same stages, so the finite-difference
-tests check the code that runs.
+and ``_bend_twist_local`` (the first five) and ``_bend_twist_global`` (the last three) run them. Energy, gradient
+and Hessian come from the same stages, so the finite-difference tests check the code that runs.
 """
 from __future__ import annotations
 

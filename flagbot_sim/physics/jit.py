@@ -86,8 +86,10 @@ def interpreted(dispatcher):
     The arithmetic is the same operation for operation (IEEE double in both; numba contracts nothing into fused
     multiply-adds and calls the C library's ``sqrt``, ``sin``, ``atan2`` as ``math`` does), so it gives the same
     numbers to the last bit, only slower: what a first run uses while a background process compiles the kernel
-    (warmup.py). Memoised: one twin per function."""
+    (warmup.py). A C function it calls by symbol (``types.ExternalFunction``: LAPACK, linsolve.py) is called
+    through ctypes (:func:`external`), the very same function. Memoised: one twin per function."""
     from numba.core.dispatcher import Dispatcher
+    from numba.core.types import ExternalFunction
     twin = _TWINS.get(dispatcher)
     if twin is None:
         import types as pytypes
@@ -98,6 +100,24 @@ def interpreted(dispatcher):
             value = ns.get(name)
             if isinstance(value, Dispatcher):
                 ns[name] = interpreted(value)
+            elif isinstance(value, ExternalFunction):
+                ns[name] = external(value)
+    return twin
+
+
+def external(fn):
+    """A C function that compiled code calls by symbol (``types.ExternalFunction``, registered with LLVM), callable
+    from Python through ctypes: int64, int32 and float64 arguments, those or no result. Memoised."""
+    twin = _TWINS.get(fn)
+    if twin is None:
+        import ctypes
+
+        import llvmlite.binding as llvm
+        from numba import types
+        c = {types.int64: ctypes.c_int64, types.int32: ctypes.c_int32, types.float64: ctypes.c_double,
+             types.none: None}
+        twin = _TWINS[fn] = ctypes.CFUNCTYPE(c[fn.sig.return_type], *(c[a] for a in fn.sig.args))(
+            llvm.address_of_symbol(fn.symbol))
     return twin
 
 

@@ -19,15 +19,13 @@ maps every CSC slot once, at construction, to its place in the banded / dense bl
 """
 from __future__ import annotations
 
-import functools
-
 import llvmlite.binding as llvm
 import numpy as np
 from numba import types
 from numba.extending import get_cython_function_address
 
 from .assembly import SparsePattern
-from .jit import kernel, stage
+from .jit import external, interpreted, kernel, stage
 from .tiers import deferred
 
 
@@ -167,34 +165,12 @@ def _arrow_solve(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr_pt
 
 
 # ----------------------------------------------------------------------------------------------- interpreted twins
-# The two kernels above, run by the interpreter: the same LAPACK routines (the very functions the compiled code
-# calls, through ctypes) on the same buffers, and numpy for the loops, summing in the same order (np.add.accumulate
-# adds left to right, from a leading 0.0 as the loops' accumulators start): the same numbers to the last bit, and
-# the same factors in the same places, so a factorisation made here serves the compiled solve and back. What a
-# first run steps with while a background process compiles the kernels (warmup.py, group "arrow").
-@functools.lru_cache(maxsize=None)
-def _lapack_py(name: str, nargs: int):
-    import ctypes
-    return ctypes.CFUNCTYPE(None, *([ctypes.c_int64] * nargs))(
-        get_cython_function_address("scipy.linalg.cython_lapack", name))
-
-
-def _band_factor_py(buf, off, ldab, m, kl, ku, ipiv, piv_off, iw):
-    iw[0], iw[1], iw[2], iw[3], iw[4] = m, m, kl, ku, ldab
-    w = iw.ctypes.data
-    _lapack_py("dgbtrf", 8)(w + I0, w + I1, w + I2, w + I3, buf.ctypes.data + 8 * off, w + I4,
-                            ipiv.ctypes.data + 4 * piv_off, w + INFO)
-    return int(iw[5])
-
-
-def _band_solve_py(buf, off, ldab, m, kl, ku, ipiv, piv_off, rhs, rhs_off, nrhs, iw):
-    iw[0], iw[1], iw[2], iw[3], iw[4], iw[6] = m, kl, ku, nrhs, ldab, m
-    iw[7] = 78
-    w = iw.ctypes.data
-    _lapack_py("dgbtrs", 11)(w + TRANS, w + I0, w + I1, w + I2, w + I3, buf.ctypes.data + 8 * off, w + I4,
-                             ipiv.ctypes.data + 4 * piv_off, rhs.ctypes.data + 8 * rhs_off, w + I6, w + INFO)
-
-
+# The two kernels above, run by the interpreter: the band stages' own twins (jit.interpreted) and the same LAPACK
+# functions (jit.external: the very functions the compiled code calls) on the same buffers, and numpy for the
+# loops, summing in the same order (np.add.accumulate adds left to right, from a leading 0.0 as the loops'
+# accumulators start): the same numbers to the last bit, and the same factors in the same places, so a
+# factorisation made here serves the compiled solve and back. What a first run steps with while a background
+# process compiles the kernels (warmup.py, group "arrow").
 def _dots(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """(len(rows), len(cols)) sums of products of their rows, each summed left to right from 0.0 (as a loop
     ``acc += a[i] * b[i]`` does)."""
@@ -212,14 +188,14 @@ def _arrow_factor_py(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C
     for i in range(ab_off.shape[0]):
         m = int(ab_cols[i])
         p0 = int(piv_ptr[i])
-        if _band_factor_py(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, iw) != 0:
+        if interpreted(_band_factor)(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, iw) != 0:
             return i + 1
         ncc = int(cc_ptr[i + 1] - cc_ptr[i])
         ncr = int(cr_ptr[i + 1] - cr_ptr[i])
         y0 = int(Y_off[i])
         Y[y0: y0 + m * ncc] = buf[B_off[i]: B_off[i] + m * ncc]
         if ncc:
-            _band_solve_py(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, Y, y0, ncc, iw)
+            interpreted(_band_solve)(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, p0, Y, y0, ncc, iw)
         if ncr and ncc:
             c0 = int(C_off[i])
             acc = _dots(buf[c0: c0 + ncr * m].reshape(ncr, m), Y[y0: y0 + ncc * m].reshape(ncc, m))
@@ -227,7 +203,7 @@ def _arrow_factor_py(data, dest, buf, ab_off, ab_rows, ab_cols, kl, ku, B_off, C
             buf[D_off + rows[:, None] * nc + cols[None, :]] -= acc
     iw[0], iw[1], iw[2] = nc, nc, nc
     w = iw.ctypes.data
-    _lapack_py("dgetrf", 6)(w + I0, w + I1, buf.ctypes.data + 8 * D_off, w + I2, core_piv.ctypes.data, w + INFO)
+    external(_dgetrf)(w + I0, w + I1, buf.ctypes.data + 8 * D_off, w + I2, core_piv.ctypes.data, w + INFO)
     return -1 if iw[5] != 0 else 0
 
 
@@ -239,7 +215,7 @@ def _arrow_solve_py(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr
         m = int(ab_cols[i])
         z0 = int(piv_ptr[i])
         z[z0: z0 + m] = b[chain_dofs[z0: z0 + m]]
-        _band_solve_py(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, z0, z, z0, 1, iw)
+        interpreted(_band_solve)(buf, ab_off[i], ab_rows[i], m, kl[i], ku[i], ipiv, z0, z, z0, 1, iw)
         ncr = int(cr_ptr[i + 1] - cr_ptr[i])
         if ncr:
             c0 = int(C_off[i])
@@ -248,7 +224,7 @@ def _arrow_solve_py(buf, ab_off, ab_rows, ab_cols, kl, ku, C_off, cc_ptr, cc, cr
     iw[0], iw[1], iw[2], iw[3] = nc, 1, nc, nc
     iw[7] = 84
     w = iw.ctypes.data
-    _lapack_py("dgetrs", 9)(w + TRANS, w + I0, w + I1, buf.ctypes.data + 8 * D_off, w + I2, core_piv.ctypes.data,
+    external(_dgetrs)(w + TRANS, w + I0, w + I1, buf.ctypes.data + 8 * D_off, w + I2, core_piv.ctypes.data,
                             rhs.ctypes.data, w + I3, w + INFO)
     x[core_dofs] = rhs
     for i in range(ab_off.shape[0]):

@@ -10,7 +10,6 @@ import sys
 import time
 
 
-
 def open_live_view(args):
     """The LiveView the arguments ask for (``--view``), or None. A taken port ends the command with a one-line
     error (exit 1); a missing ``[view]`` extra raises MissingExtra, which the command's entry point reports with
