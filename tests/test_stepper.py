@@ -245,3 +245,107 @@ def test_a_failing_step_in_a_batch_fails_as_it_does_step_by_step(extra):
     (ma, na, ta, qa, sa), (mb, nb, tb, qb, sb) = got
     assert "did not converge" in ma
     assert (ma, na, ta) == (mb, nb, tb) and np.array_equal(qa, qb) and np.array_equal(sa, sb)
+
+
+def _steps_with_choice(sim, n: int) -> tuple[list[float], list[int]]:
+    """Step by step: Newton's start after each step (1: first-order continuation) and its iterations."""
+    order, its = [], []
+    for _ in range(n):
+        sim.step()
+        order.append(sim.stepper._kept[2])
+        its.append(sim.last_stats.newton_iterations)
+    return order, its
+
+
+def test_newton_starts_from_the_first_order_continuation_once_it_predicts_better(monkeypatch):
+    """In a steady rotation the motion about the axis is first order exactly and the second differences of the
+    states are Newton's tolerance, which the second-order continuation amplifies: the stepper switches to the
+    first-order start there, and needs fewer corrections for the same motion (solver tolerance apart)."""
+    sim = small_robot()
+    order, its = _steps_with_choice(sim, 500)
+    assert order[0] == 0.0                               # from rest: second order first
+    assert np.mean(order[-200:]) > 0.9                   # the steady rotation: first order
+    with_choice = np.mean(its[-200:])
+    from flagbot_sim.physics.stepper import Stepper
+    monkeypatch.setattr(Stepper, "_choose_order", lambda self, both, q: None)
+    ref = small_robot()
+    order_ref, its_ref = _steps_with_choice(ref, 500)
+    assert not any(order_ref)
+    assert with_choice < 0.7 * np.mean(its_ref[-200:]), (with_choice, np.mean(its_ref[-200:]))
+    # the same motion: the two differ by Newton's tolerance, not by the predictor
+    s, r = sim.summary(), ref.summary()
+    for k in ("omega_h", "omega_t", "v"):
+        assert s[k] == pytest.approx(r[k], rel=1e-7, abs=1e-12), k
+    assert np.max(np.abs(sim.state.q - ref.state.q)[: 3 * sim.model.net.n_nodes]) < 1e-8
+
+
+def test_the_compiled_steps_choose_newtons_start_as_the_stepper_does_to_the_last_bit():
+    """With error control the start switches both ways (a command step is a transient); the compiled steps
+    (newton._choose_order) take the same starts as the stepper's Python code: the same states to the last bit."""
+    runs = []
+    for batched in (True, False):
+        sim = small_robot("time.rtol=1e-3")
+        orders = []
+        for omega in (sim.omega_T, 0.5 * sim.omega_T, -sim.omega_T):
+            sim.set_omega(omega)
+            t_end = sim.time + 1.5
+            if batched:
+                sim.run(1.5)
+            else:
+                while sim.time < t_end - 1e-12 * max(1.0, abs(t_end)):
+                    sim.step(t_end=t_end)
+                    orders.append(sim.stepper._kept[2])
+        runs.append((sim, orders))
+    (a, _), (b, orders) = runs
+    switches = np.diff(orders)
+    assert (switches > 0).sum() >= 2 and (switches < 0).sum() >= 2, switches
+    assert (a.steps, a.newton_iterations, a.reductions) == (b.steps, b.newton_iterations, b.reductions)
+    assert a.stepper._kept[2] == b.stepper._kept[2]
+    for x, y in ((a.state.q, b.state.q), (a.state.v, b.state.v), (a.state.q_prev, b.state.q_prev)):
+        assert _same(x, y)
+    assert _same(a.observer.history.rows(), b.observer.history.rows())
+
+
+def test_both_continuations_are_exact_for_a_steady_rotation_and_the_second_order_one_amplifies_noise():
+    """The robot turning rigidly about its axis at omega and swimming along it: both continuations give the next
+    state to round-off. Noise of size eps on the three states (Newton's tolerance) reaches the second-order
+    continuation with weights (3, -3, 1) and the first-order one with (2, -1): sqrt(19 / 5) ~ 1.95 times
+    larger in RMS."""
+    from flagbot_sim.physics.model import State
+    from flagbot_sim.physics.stepper import axis_nodes, continuations
+    sim = small_robot()
+    sim.run(0.3)                                    # a bent robot, off the axis everywhere
+    net = sim.model.net
+    N = net.n_nodes
+    x0 = sim.state.q[: 3 * N].reshape(N, 3).copy()
+    i0, i1, i2 = axis_nodes(net)
+    axis = x0[i2] - x0[i0]
+    axis /= np.linalg.norm(axis)
+    centre = x0[i1].copy()
+    omega, speed, h = 3.0, 2e-3, 0.01
+
+    def at(t):
+        """q at time t: x0 turned by omega t about the axis through the centre, moved by speed t along it."""
+        a, K = omega * t, np.cross(np.eye(3), axis)            # K: the cross-product matrix of the axis
+        R = np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K
+        q = sim.state.q.copy()
+        q[: 3 * N] = ((x0 - centre) @ R.T + centre + speed * t * axis).ravel()
+        q[3 * N:] += 0.7 * t                                   # twist angles at a steady rate
+        return q
+
+    def state(qs):
+        return State(0.0, qs[0], np.zeros_like(qs[0]), None, 0.0, h, h, qs[1], np.zeros_like(qs[0]), qs[2])
+
+    q2, q1 = continuations(state([at(0.0), at(-h), at(-2 * h)]), h, (i0, i1, i2), N)
+    truth = at(h)
+    scale = np.abs(truth).max()
+    assert np.abs(q2 - truth).max() < 1e-12 * scale and np.abs(q1 - truth).max() < 1e-12 * scale
+    rng = np.random.default_rng(7)
+    eps = 1e-9
+    e2 = e1 = 0.0
+    for _ in range(20):
+        noisy = [at(-k * h) + eps * rng.standard_normal(len(truth)) for k in range(3)]
+        q2, q1 = continuations(state(noisy), h, (i0, i1, i2), N)
+        e2 += np.sum((q2 - truth)[: 3 * N] ** 2)
+        e1 += np.sum((q1 - truth)[: 3 * N] ** 2)
+    assert math.sqrt(e2 / e1) == pytest.approx(math.sqrt(19 / 5), rel=0.1)

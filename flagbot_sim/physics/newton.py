@@ -97,6 +97,10 @@ CHORD_MAX_MORE = 2.0
 CHORD_DEEPEN = 0.5
 #: a factorisation made for dv/dq = 1/h ... serves steps whose coefficient differs by less than this (relative)
 REUSE_DV_CHANGE = 0.15
+#: Newton's start continues the motion to first order (not second) once that has landed nearer the converged
+#: state, and until the second-order continuation lands this much nearer (in squared, weighted distance) than it
+#: (Stepper.predictions has why)
+LINEAR_HOLD = 0.05
 
 
 # ----------------------------------------------------------------------------------------------- evaluation
@@ -321,8 +325,9 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
             fix_diag, scale, tol, max_iterations, sol, dest, axis, kept, kept_pose, stats):
     """One step's Newton solve from the iterate q0 (Stepper._attempt has the algorithm, decision for decision).
 
-    ``kept`` = [a factorisation is kept (1) or not (0), the dv it was made for], ``kept_pose`` (9) its pose: both
-    updated. ``stats``: [0] = the last residual norm, [1:] += line-search cuts, Jacobians, chord rejections.
+    ``kept`` = [a factorisation is kept (1) or not (0), the dv it was made for, (the predictor's order: _advance)],
+    ``kept_pose`` (9) its pose: both updated. ``stats``: [0] = the last residual norm, [1:] += line-search cuts,
+    Jacobians, chord rejections.
     Returns (converged, iterations, q, v, (t, length, d1, d2, ref_twist)) of the accepted iterate."""
     edges, hinge_edges, sign = net
     d1c, tc, ref_prev = committed
@@ -467,7 +472,7 @@ def _newton(fns, q0, N, dv, v0, da, a0, angle, twist_hinge, order, net, committe
 #: the solve as _advance calls it, by address (its code is not compiled again into _advance): its return type,
 #: then NEWTON_SIGNATURE's arguments; and the predictor's kernel (stepper._predict_cylindrical)
 NEWTON_AT = "(b i f1 f1 (f2 f1 f2 f2 f1)) " + NEWTON_SIGNATURE[2:]
-PREDICT_AT = "- f2 f2 f2 f f f f b i i i f2"
+PREDICT_AT = "- f2 f2 f2 f f f f f b i i i f2 f2"
 _newton_at, _predict_at = function_at(NEWTON_AT), function_at(PREDICT_AT)
 
 #: _advance's layout of its arrays (Stepper.advance fills and reads them)
@@ -508,7 +513,7 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
         cfg[0], cfg[1], cfg[2], cfg[3], cfg[4], cfg[5], cfg[6], cfg[7], cfg[8], cfg[9], cfg[10])
     i0, i1, i2 = pax[0], pax[1], pax[2]
     has_head, e_head, e_shaft, node, ka, kb = obs_i[0], obs_i[1], obs_i[2], obs_i[3], obs_i[4], obs_i[5]
-    v0, a0, qt, err = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    v0, a0, qt, ql, err = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     m = T.shape[1] * 3
     Tf, D1f, D2f = T.reshape(2 * m), D1.reshape(2 * m), D2.reshape(2 * m)
     k = 0
@@ -555,27 +560,24 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
                     a0[i] = ih * (v0[i] - v[i])
                 dv = ih
                 da = ih * ih
+            both = False                 # both continuations made (stepper.continuations)
             if h1 <= 0.0 or not have1:
                 for i in range(n):
                     qt[i] = q[i] + h * v[i]
             else:
-                second = h2 > 0.0 and have2
-                p1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)
-                p0 = -h * (h + h1) / (h1 + h2) if second else 0.0
-                for i in range(n):
-                    s1 = (q[i] - qp[i]) / h1
-                    s0 = (qp[i] - qp2[i]) / h2 if second else s1
-                    qt[i] = q[i] + p1 * s1 + p0 * s0
-                x = q[: 3 * N].reshape((N, 3))
-                x1 = qp[: 3 * N].reshape((N, 3))
-                x2 = qp2[: 3 * N].reshape((N, 3)) if second else x1
-                _predict_at(pfn)(x, x1, x2, h1, h2 if second else 0.0, p1, p0, second, i0, i1, i2,
-                                 qt[: 3 * N].reshape((N, 3)))
+                both = h2 > 0.0 and have2
+                _continued(pfn, N, q, qp, qp2, h, h1, h2, both, i0, i1, i2, qt, ql)
             for j in range(4):
                 stats[j] = 0.0
             ok, its, qn, vn, fr = _newton_at(nfn)(
-                fns, qt.copy(), N, dv, v0, da, a0, angle, twist_hinge, codes, net, (D1[0], T[0], RT[0]), el, ef,
-                fixed, fix_slots, fix_diag, scale, tol, max_it, sol, dest, axis, kept, kept_pose, stats)
+                fns, (ql if both and kept[2] > 0.0 else qt).copy(), N, dv, v0, da, a0, angle, twist_hinge, codes,
+                net, (D1[0], T[0], RT[0]), el, ef, fixed, fix_slots, fix_diag, scale, tol, max_it, sol, dest, axis,
+                kept, kept_pose, stats)
+            if ok and both:
+                for i in range(n):
+                    err[i] = qn[i] - ql[i]
+                e_lin, e_quad = _sums(w_norm, err, qn, qt)
+                _choose_order(kept, e_quad, e_lin)
             cuts += stats[1]
             jacs += stats[2]
             chords += stats[3]
@@ -680,6 +682,36 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
         if t1 >= due_at:
             break
     return status
+
+
+@stage
+def _continued(pfn, N, q, qp, qp2, h, h1, h2, second, i0, i1, i2, out, out1):
+    """stepper.continuations: the motion of the states q, qp, qp2 (steps h1, h2 before) continued by h to second
+    order into ``out`` (to first order if not ``second``), and if ``second`` to first order into ``out1``."""
+    p1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)
+    p0 = -h * (h + h1) / (h1 + h2) if second else 0.0
+    for i in range(q.shape[0]):
+        s1 = (q[i] - qp[i]) / h1
+        s0 = (qp[i] - qp2[i]) / h2 if second else s1
+        out[i] = q[i] + p1 * s1 + p0 * s0
+        if second:
+            out1[i] = q[i] + h * s1
+    x = q[: 3 * N].reshape((N, 3))
+    x1 = qp[: 3 * N].reshape((N, 3))
+    x2 = qp2[: 3 * N].reshape((N, 3)) if second else x1
+    _predict_at(pfn)(x, x1, x2, h, h1, h2 if second else 0.0, p1, p0, second, i0, i1, i2,
+                     out[: 3 * N].reshape((N, 3)), (out1 if second else out)[: 3 * N].reshape((N, 3)))
+
+
+@stage
+def _choose_order(kept, e_quad, e_lin):
+    """The order of the next continuation (kept[2]: 1 first, 0 second; Stepper._choose_order) from how far the
+    converged state lies from the two continuations of this step (weighted squares)."""
+    if kept[2] > 0.0:
+        if e_quad < LINEAR_HOLD * e_lin:
+            kept[2] = 0.0
+    elif e_lin < e_quad:
+        kept[2] = 1.0
 
 
 @stage

@@ -24,8 +24,8 @@ from .frames import EdgeFrames, cross3
 from .jit import kernel
 from .linsolve import SingularJacobian, make_solver
 from .model import RobotModel, State, StepPlan
-from .newton import (CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, REUSE_DV_CHANGE, StepNewton, error_sums,
-                     residual_norms, robot_pose, supported)
+from .newton import (CHORD_CONTRACTION, CHORD_DEEPEN, CHORD_MAX_MORE, LINEAR_HOLD, REUSE_DV_CHANGE, StepNewton,
+                     error_sums, residual_norms, robot_pose, supported)
 from .tiers import tiered
 
 #: the kernel group of the predictor and the stepper's sums (their interpreted twins while it is deferred)
@@ -146,10 +146,11 @@ VELOCITY_GAIN = {2: 11.0 / 9.0, 1: 1.5}
 
 # ----------------------------------------------------------------------------------------------- predictor
 @kernel
-def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
-    """Second-order extrapolation of node positions in cylindrical coordinates about the robot axis (see
-    :func:`predict`), from the positions x, xp, xpp at t_n, t_n - h1, t_n - h1 - h2. ``out`` holds the Cartesian
-    prediction on entry (kept for nodes on the axis)."""
+def _predict_cylindrical(x, xp, xpp, h, h1, h2, c1, c0, second, i0, i1, i2, out, out1):
+    """Extrapolation of node positions in cylindrical coordinates about the robot axis (see :func:`continuations`),
+    from the positions x, xp, xpp at t_n, t_n - h1, t_n - h1 - h2, by h: to second order into ``out`` (weights c1,
+    c0 of the last two slopes) and, if ``second``, to first order (the last slope) into ``out1`` too. ``out`` and
+    ``out1`` hold the Cartesian predictions on entry (kept for nodes on the axis)."""
     if i0 != i2:
         a0, a1, a2 = x[i2, 0] - x[i0, 0], x[i2, 1] - x[i0, 1], x[i2, 2] - x[i0, 2]
         na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
@@ -157,6 +158,7 @@ def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
     else:
         a0, a1, a2 = 1.0, 0.0, 0.0
     cn0, cn1, cn2 = out[i1, 0], out[i1, 1], out[i1, 2]          # the centre, predicted on the axis
+    cf0, cf1, cf2 = out1[i1, 0], out1[i1, 1], out1[i1, 2]       # (to first order)
     # by time (now, one step back, two steps back), each a row of three: the centre C, the node P, its distance
     # along the axis S, its radial vector R and that vector's length rn
     C = np.empty(9)
@@ -214,18 +216,29 @@ def _predict_cylindrical(x, xp, xpp, h1, h2, c1, c0, second, i0, i1, i2, out):
         out[k, 0] = cn0 + s_new * a0 + r_new * (cp * u0 + sp * w0)
         out[k, 1] = cn1 + s_new * a1 + r_new * (cp * u1 + sp * w1)
         out[k, 2] = cn2 + s_new * a2 + r_new * (cp * u2 + sp * w2)
+        if second:
+            s_new = S[0] + h * ds
+            r_new = r0 + h * dr
+            phi = h * dphi
+            cp, sp = math.cos(phi), math.sin(phi)
+            out1[k, 0] = cf0 + s_new * a0 + r_new * (cp * u0 + sp * w0)
+            out1[k, 1] = cf1 + s_new * a1 + r_new * (cp * u1 + sp * w1)
+            out1[k, 2] = cf2 + s_new * a2 + r_new * (cp * u2 + sp * w2)
 
 
-def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: int) -> np.ndarray:
-    """Newton's starting point: the last three states' motion continued to second order (Newton divided
-    differences of the DOFs themselves, whatever the integrator's velocity formula), in cylindrical coordinates
+def continuations(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: int
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Newton's starting points: the last three states' motion continued to second order (Newton divided
+    differences of the DOFs themselves, whatever the integrator's velocity formula), and to first order (the last
+    step's motion; None without a third state, where the first is that already), in cylindrical coordinates
     (axial, radial, azimuth) about the robot axis (through the nodes ``axis_nodes``: front, centre, back) for
     every node off that axis. Every part of the robot turns about the axis, and for a steady rotation this is
     exact, where a Cartesian extrapolation cuts the chord and stretches the stiff plate by ~R (omega h)^3
-    (design 2: several newtons of residual and two extra Newton iterations per step)."""
+    (design 2: several newtons of residual and two extra Newton iterations per step). Which of the two a step
+    starts from: Stepper.predictions."""
     h1, h2 = state.h, state.h_prev
     if h1 <= 0.0 or state.q_prev is None:
-        return state.q + h * state.v
+        return state.q + h * state.v, None
     second = h2 > 0.0 and state.q_prev2 is not None
     d1 = (state.q - state.q_prev) / h1                          # slope over the last step
     d0 = (state.q_prev - state.q_prev2) / h2 if second else d1  # and over the one before
@@ -233,14 +246,20 @@ def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: i
     c1 = h + (h * (h + h1) / (h1 + h2) if second else 0.0)
     c0 = -h * (h + h1) / (h1 + h2) if second else 0.0
     q = state.q + c1 * d1 + c0 * d0                             # twist angles, nodes on the axis
+    q1 = state.q + h * d1 if second else q
     N = n_nodes
     x = state.q[: 3 * N].reshape(N, 3)
     x1 = state.q_prev[: 3 * N].reshape(N, 3)
     x2 = state.q_prev2[: 3 * N].reshape(N, 3) if second else x1
     i0, i1, i2 = axis_nodes
-    tiered(TS, _predict_cylindrical)(x, x1, x2, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2,
-                                     q[: 3 * N].reshape(N, 3))
-    return q
+    tiered(TS, _predict_cylindrical)(x, x1, x2, h, h1, h2 if second else 0.0, c1, c0, second, i0, i1, i2,
+                                     q[: 3 * N].reshape(N, 3), q1[: 3 * N].reshape(N, 3))
+    return q, (q1 if second else None)
+
+
+def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: int) -> np.ndarray:
+    """The second-order continuation of :func:`continuations`."""
+    return continuations(state, h, axis_nodes, n_nodes)[0]
 
 
 def axis_nodes(net) -> tuple[int, int, int]:
@@ -292,9 +311,10 @@ class Stepper:
                                              np.where(self._norm_twist, ell * ell, 0.0)])
         self._norm_count = int(self._free_nodes.sum() + self._norm_twist.sum())
         self._fixed_steps = 0             # fixed steps taken (the velocity error's sampling)
-        # the factorisation the solver holds: [kept (1) or not (0), the integrator coefficient it was made for],
-        # and the robot's pose it was made at (see _rotated_solve); shared with the compiled solve
-        self._kept = np.zeros(2)
+        # what the solver carries from step to step, shared with the compiled solve: [a factorisation kept (1) or
+        # not (0), the integrator coefficient it was made for, Newton's start continued to first order (1) or to
+        # second (0): see predictions], and the robot's pose the factorisation was made at (see _rotated_solve)
+        self._kept = np.zeros(3)
         self._kept_pose = np.eye(3)
         self._rim = int(net.edges[net.plate_edges[0], 1])
         #: the compiled Newton solve of a step (newton.py) if ``compiled`` (its kernel loaded: the Simulation asks
@@ -520,6 +540,7 @@ class Stepper:
     def reset(self) -> None:
         """Forget the Jacobian kept from earlier steps (a run restarted from its beginning repeats itself)."""
         self._kept[0] = 0.0
+        self._kept[2] = 0.0
         self._fixed_steps = 0
 
     def _pose(self, q: np.ndarray) -> np.ndarray:
@@ -565,7 +586,7 @@ class Stepper:
             self.solver.factor(J)
         except SingularJacobian:
             return False
-        self._kept[:] = 1.0, plan.dv_dq
+        self._kept[:2] = 1.0, plan.dv_dq
         self._kept_pose[:] = self._pose(ctx.q)
         return True
 
@@ -582,7 +603,7 @@ class Stepper:
         model = self.model
         angle = state.drive_angle + (omega * h if model.driver is not None else 0.0)
         plan = self.integrator.plan(state, h, angle)
-        q = self.predict(state, h)
+        q, both = self.predictions(state, h)
         model.prescribe(q, state, angle)
         if self._newton is not None and not python_loop:
             st = self._newton.stats
@@ -599,6 +620,7 @@ class Stepper:
                 stats.chord_rejections += int(st[3])
                 if not ok:
                     return None
+                self._choose_order(both, q_new)
                 stats.newton_iterations += its
                 return State(plan.t, q_new, v_new, EdgeFrames(t, d1, d2, rt), plan.drive_angle, plan.h, state.h,
                              state.q, state.v, state.q_prev)
@@ -622,6 +644,7 @@ class Stepper:
                     if self._norm(r_try) < rn:
                         ctx = ctx_try
                     it += 1
+                self._choose_order(both, ctx.q)
                 return self._accept(state, plan, ctx, stats, it)
             if it == self.max_iterations:
                 return None
@@ -677,8 +700,38 @@ class Stepper:
             fresh = True
         return None
 
-    def predict(self, state: State, h: float) -> np.ndarray:
-        return predict(state, h, self._axis_nodes, self.model.net.n_nodes)
+    def predictions(self, state: State, h: float) -> tuple[np.ndarray, tuple | None]:
+        """(Newton's start for a step of size h from ``state``, (second-order, first-order continuation) where
+        both were made, else None): :func:`continuations`.
+
+        Both are made wherever the history has three states, and the start is the one the last steps favoured
+        (``_kept[2]``, :meth:`_choose_order`). Second order is right while the motion changes; in a steady
+        rotation (a swimmer at its speed: most of a long run) the motion about the axis is first order exactly,
+        and the second differences of the converged states are only Newton's tolerance, which the second-order
+        continuation amplifies (weights 3, -3, 1 against 2, -1): design 1, n = 3 at 150 rpm then needed 0.8
+        Newton corrections per step with it and 0.37 with the first-order one, whose zero-correction steps also
+        continue exactly on their line."""
+        q2, q1 = continuations(state, h, self._axis_nodes, self.model.net.n_nodes)
+        if q1 is None:
+            return q2, None
+        return (q1 if self._kept[2] > 0.0 else q2), (q2, q1)
+
+    def _choose_order(self, both: tuple | None, q_new: np.ndarray) -> None:
+        """After a converged solve from :meth:`predictions`' start: continue to first order from the next step on
+        if that continuation lay nearer the converged state ``q_new`` (distances weighted as the error norm's,
+        squared); back to second order only once the second-order continuation lies newton.LINEAR_HOLD (in
+        squares) nearer. The hold keeps the first-order start through the steady rotation's noise, and a change
+        of motion (a command, a transient) shows at once as a second-order continuation that lands far nearer.
+        The compiled steps (newton._choose_order) decide the same, to the last bit."""
+        if both is None:
+            return
+        q2, q1 = both
+        e_lin, e_quad, _ = self._error_sums(q_new - q1, q_new, q2)
+        if self._kept[2] > 0.0:
+            if e_quad < LINEAR_HOLD * e_lin:
+                self._kept[2] = 0.0
+        elif e_lin < e_quad:
+            self._kept[2] = 1.0
 
     def _accept(self, state: State, plan: StepPlan, ctx, stats: StepStats, iterations: int) -> State:
         stats.newton_iterations += iterations
