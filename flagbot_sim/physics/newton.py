@@ -490,8 +490,10 @@ Q_ROWS = 7
 #:      dt_min
 OUT_COLS = 10
 #: last: the last step's Newton iterations, residual, line-search cuts, Jacobians, chord rejections, dt
-#:       reductions, rejections, error norm, dt_min, the last step size tried, velocity error, its step size
-LAST = 12
+#:       reductions, rejections, error norm, dt_min, the last step size tried, velocity error, its step size,
+#:       the predictor's order (kept[2]) the step began with (Simulation.advance restores it where the step is
+#:       taken again in Python)
+LAST = 13
 #: what _advance returns: the steps asked for are done (or an output time is reached); a fixed step's Newton
 #: failed (the stepper's Python code halves it: Stepper.step(resume=...)); an error-controlled step fell below
 #: numerics.min_dt (StepFailed)
@@ -535,6 +537,7 @@ def _advance(fns, nfn, pfn, N, twist_hinge, codes, net, el, ef, fixed, fix_slots
         else:
             h = dt
         its_all = 0
+        last[12] = kept[2]
         reductions = rejections = 0
         cuts = jacs = chords = 0.0
         norm = 0.0

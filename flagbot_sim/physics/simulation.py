@@ -164,7 +164,9 @@ class Simulation:
             status = st.advance(b, self.dt, self._omega, min(max_steps, b.capacity), t_end, t_stop,
                                 det.next_check - 1e-9 * det.window)
         except ZeroDivisionError:
-            pass             # a folded iterate: that step again, its first attempt in the Python loop (as step's)
+            # a folded iterate: that step again, its first attempt in the Python loop (as step's), from the
+            # predictor's order it began with (an earlier attempt of it may have changed it)
+            st._kept[2] = b.last[12]
         k = int(b.icfg[8])
         if k:
             self._took(b, k)

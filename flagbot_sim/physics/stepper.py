@@ -720,9 +720,10 @@ class Stepper:
         """After a converged solve from :meth:`predictions`' start: continue to first order from the next step on
         if that continuation lay nearer the converged state ``q_new`` (distances weighted as the error norm's,
         squared); back to second order only once the second-order continuation lies newton.LINEAR_HOLD (in
-        squares) nearer. The hold keeps the first-order start through the steady rotation's noise, and a change
-        of motion (a command, a transient) shows at once as a second-order continuation that lands far nearer.
-        The compiled steps (newton._choose_order) decide the same, to the last bit."""
+        squares) nearer. The hold keeps the first-order start through the steady rotation's noise; a change of
+        motion large enough to matter shows as a second-order continuation that lands far nearer (a gentler one
+        keeps the first-order start, which then still needs few corrections). The compiled steps
+        (newton._choose_order) decide the same, to the last bit."""
         if both is None:
             return
         q2, q1 = both
