@@ -167,12 +167,53 @@ def test_failed_flagellum_solve_is_reported_not_hidden(monkeypatch):
         raise NLBSolveError(omega_t, None, "The maximum number of mesh nodes is exceeded.")
 
     monkeypatch.setattr(balance_module, "solve_nlb_coupled", failing)
+    monkeypatch.setattr(balance_module, "solve_nlb_balanced", lambda *a, **k: None)   # the one-BVP solve fails too
     with pytest.raises(NLBSolveError, match=r"omega_t = .* rad/s .*mesh nodes.*omega_T = 10.472 rad/s"):
         solve_balance(params, 100 * RPM, "nlb")
     quiet = solve_balance(params, 100 * RPM, "nlb", raise_on_failure=False)
     assert not quiet.converged and "mesh nodes" in quiet.message
     assert np.isnan(quiet.omega_t) and np.isnan(quiet.v_h)
     assert isinstance(NLBSolveError(1.0, None, "x"), BeamSolveError)
+
+
+@pytest.mark.parametrize("regime", ["nlb-nohead", "nlb"])
+@pytest.mark.parametrize("name", ["design1", "design2"])
+def test_the_balance_as_a_boundary_condition_is_the_root_of_the_search(name, regime, monkeypatch):
+    """The torque balance solved as a boundary condition of one BVP (omega_t an unknown) gives the root the
+    search over omega_t (Brent's method, one BVP per try) finds, to the BVP's accuracy, in one solve."""
+    one, searched = [], []
+    for n in (2, 3, 5):
+        params = design(name, n)
+        for rpm in (20.0, 100.0, 250.0):
+            one.append(solve_balance(params, rpm * RPM, regime))
+    monkeypatch.setattr(balance_module, "solve_nlb_balanced", lambda *a, **k: None)
+    for n in (2, 3, 5):
+        params = design(name, n)
+        for rpm in (20.0, 100.0, 250.0):
+            searched.append(solve_balance(params, rpm * RPM, regime))
+    for a, b in zip(one, searched):
+        assert a.converged and b.converged
+        assert a.bvp_solves == 1 and "boundary condition of one BVP" in a.message
+        assert "Brent" in b.message and b.bvp_solves >= 3
+        for key in ("omega_t", "omega_h", "v_h", "F_x", "F_p", "w_tip_over_L"):
+            assert getattr(a, key) == pytest.approx(getattr(b, key), rel=2e-8), key
+
+
+def test_a_boundary_condition_root_outside_the_bracket_is_not_taken(monkeypatch):
+    """The one-BVP solve is taken only with its root inside the bracket the loads prove; a root elsewhere (a
+    solve that wandered) hands the balance to the root search."""
+    params = design("design1", 3)
+    real = balance_module.solve_nlb_balanced
+
+    def wandered(params, omega_T, coupled, omega_t0, **kwargs):
+        sol = real(params, omega_T, coupled, omega_t0, **kwargs)
+        return dataclasses.replace(sol, omega_t=0.999 * omega_T)
+
+    monkeypatch.setattr(balance_module, "solve_nlb_balanced", wandered)
+    res = solve_balance(params, 100 * RPM, "nlb")
+    assert res.converged and "Brent" in res.message
+    monkeypatch.undo()
+    assert res.omega_t == pytest.approx(solve_balance(params, 100 * RPM, "nlb").omega_t, rel=2e-8)
 
 
 def test_unknown_regime_is_an_error():

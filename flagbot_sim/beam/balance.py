@@ -34,7 +34,7 @@ from typing import Iterable
 from scipy.optimize import brentq
 
 from .linear import FlagellumSolution, lb_F_p, solve_lb
-from .nonlinear import DEFAULT_TOL, BeamSolveError, NLBSolveError, solve_nlb, solve_nlb_coupled
+from .nonlinear import DEFAULT_TOL, BeamSolveError, NLBSolveError, solve_nlb, solve_nlb_balanced, solve_nlb_coupled
 from .params import BeamParams
 from ..units import RPM
 
@@ -171,9 +171,26 @@ def solve_balance(params: BeamParams, omega_T: float, regime: str = "nlb", *,
         return _result(params, regime, W, omega_t_lb, flagellum_state(params, omega_t_lb, "lb"), sign, 0,
                        "closed form")
 
-    cache: dict[float, FlagellumSolution] = {}
     first_guess = guess.flagellum if guess is not None and guess.flagellum is not None \
         and guess.flagellum.bvp is not None and guess.regime == regime else None
+    # Bracket: for u' >= 0 and v_h >= 0 the NLB load lies between kappa*p_t and p_t (the sin^2 and head terms
+    # only remove load), so g_NLB <= g_LB and the root lies in [omega_T/(1+k), omega_T/(1+kappa k)] (sorted,
+    # since kappa > 1 for very stubby flagella).
+    lo, hi = sorted((omega_t_lb, W / (1.0 + params.kappa * k)))
+    # First the balance as a boundary condition of one BVP (nonlinear.solve_nlb_balanced: omega_t an unknown),
+    # from the neighbour's solution or the LB profile: taken if it converges to a root inside the bracket and the
+    # balance's checks hold (_result); else, or where it fails, the root search below, as before.
+    start = first_guess.omega_t * W / abs(guess.omega_T) if first_guess is not None and guess.omega_T else omega_t_lb
+    one = solve_nlb_balanced(params, W, regime == "nlb", start, guess=first_guess.bvp if first_guess else None,
+                             tol=tol)
+    if one is not None and lo * (1.0 - 1e-9) <= one.omega_t <= hi * (1.0 + 1e-9):
+        res = _result(params, regime, W, one.omega_t, one, sign, 1,
+                      f"the torque balance as a boundary condition of one BVP (omega_t unknown), its root inside "
+                      f"the bracket [{lo:.6g}, {hi:.6g}] rad/s")
+        if res.converged:
+            return res
+
+    cache: dict[float, FlagellumSolution] = {}
 
     def state(omega_t: float) -> FlagellumSolution:
         if omega_t not in cache:
@@ -188,11 +205,7 @@ def solve_balance(params: BeamParams, omega_T: float, regime: str = "nlb", *,
         return omega_t + params.n * params.R_d * state(omega_t).F_x / params.c_torque - W
 
     try:
-        # Bracket: for u' >= 0 and v_h >= 0 the NLB load lies between kappa*p_t and p_t (the sin^2 and head
-        # terms only remove load), so g_NLB <= g_LB and the root lies in [omega_T/(1+k), omega_T/(1+kappa k)].
-        # Both ends are checked, and widened towards the always-valid bracket [0, omega_T] if wrong (sorted,
-        # since kappa > 1 for very stubby flagella).
-        lo, hi = sorted((omega_t_lb, W / (1.0 + params.kappa * k)))
+        # the bracket's ends are checked, and widened towards the always-valid bracket [0, omega_T] if wrong
         g_lo = g(lo)
         if g_lo > 0.0:
             lo, hi, g_lo = 0.0, lo, -W

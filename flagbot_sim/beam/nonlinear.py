@@ -67,7 +67,7 @@ class BVPState:
 
 
 def _load(s, A, B, kappa):
-    """P, Q and their derivatives with respect to s = u' and to B."""
+    """P, Q and their derivatives with respect to s = u', to B and to A."""
     D = 1.0 + s * s
     P = A + (kappa - 1.0) * (A * s * s + B * s) / D
     Q = (1.0 - kappa) * (A * s + B) / D - B
@@ -75,7 +75,9 @@ def _load(s, A, B, kappa):
     dQ_ds = (1.0 - kappa) * (A * (1.0 - s * s) - 2.0 * B * s) / D ** 2
     dP_dB = (kappa - 1.0) * s / D
     dQ_dB = (1.0 - kappa) / D - 1.0
-    return P, Q, dP_ds, dQ_ds, dP_dB, dQ_dB
+    dP_dA = 1.0 + (kappa - 1.0) * s * s / D
+    dQ_dA = (1.0 - kappa) * s / D
+    return P, Q, dP_ds, dQ_ds, dP_dB, dQ_dB, dP_dA, dQ_dA
 
 
 def _linear_guess(x, A, B, kappa):
@@ -94,48 +96,72 @@ def _scaled_guess(state: BVPState, A: float):
     return state.x, y, state.B * r * r
 
 
-def _attempt(A, B, kappa, x0, y0, coupled_D=None, n=None, B0=None, tol=DEFAULT_TOL, max_nodes=MAX_NODES):
-    """One solve_bvp call. With coupled_D (= c_drag/(eta_p L)) B is unknown: coupled_D B = n I_p(1)."""
+def _attempt(A, B, kappa, x0, y0, coupled_D=None, n=None, B0=None, tol=DEFAULT_TOL, max_nodes=MAX_NODES,
+             balance=None):
+    """One solve_bvp call. With coupled_D (= c_drag/(eta_p L)) B is unknown: coupled_D B = n I_p(1). With
+    ``balance`` = (a, c, W) A is unknown too (the last parameter, starting at ``A``), fixed by the robot's torque
+    balance omega_t + n R_d F_x / c_torque = omega_T with omega_t = A / a and n R_d F_x / c_torque = c I_x(1),
+    divided by W = omega_T: a boundary condition of the same BVP instead of a root search around it."""
     coupled = coupled_D is not None
+    free_A = balance is not None
+    n_p = int(coupled) + int(free_A)
+
+    def numbers(p):
+        return (p[-1] if free_A else A), (p[0] if coupled else B)
 
     def fun(x, y, p=None):
-        b = p[0] if coupled else B
-        P, Q, *_ = _load(y[1], A, b, kappa)
+        a_num, b = numbers(p)
+        P, Q, *_ = _load(y[1], a_num, b, kappa)
         return np.vstack([y[1], y[2], y[3], P, P, Q])
 
     def fun_jac(x, y, p=None):
-        b = p[0] if coupled else B
-        _, _, dP_ds, dQ_ds, dP_dB, dQ_dB = _load(y[1], A, b, kappa)
+        a_num, b = numbers(p)
+        _, _, dP_ds, dQ_ds, dP_dB, dQ_dB, dP_dA, dQ_dA = _load(y[1], a_num, b, kappa)
         J = np.zeros((6, 6, x.size))
         J[0, 1] = J[1, 2] = J[2, 3] = 1.0
         J[3, 1] = J[4, 1] = dP_ds
         J[5, 1] = dQ_ds
-        if not coupled:
+        if not n_p:
             return J
-        Jp = np.zeros((6, 1, x.size))
-        Jp[3, 0] = Jp[4, 0] = dP_dB
-        Jp[5, 0] = dQ_dB
+        Jp = np.zeros((6, n_p, x.size))
+        if coupled:
+            Jp[3, 0] = Jp[4, 0] = dP_dB
+            Jp[5, 0] = dQ_dB
+        if free_A:
+            Jp[3, -1] = Jp[4, -1] = dP_dA
+            Jp[5, -1] = dQ_dA
         return J, Jp
 
     def bc(ya, yb, p=None):
         r = [ya[0], ya[1], yb[2], yb[3], ya[4], ya[5]]    # Eq. BC, and the quadratures start at the clamp
         if coupled:
             r.append(coupled_D * p[0] - n * yb[5])        # Eq. vHead: c_drag v_h = n F_p
+        if free_A:
+            a, c, W = balance
+            r.append((p[-1] / a + c * yb[4]) / W - 1.0)   # Eq. OHead with Eq. totalOmega
         return np.array(r)
 
     def bc_jac(ya, yb, p=None):
-        m = 7 if coupled else 6
+        m = 6 + n_p
         Ja, Jb = np.zeros((m, 6)), np.zeros((m, 6))
         Ja[0, 0] = Ja[1, 1] = Ja[4, 4] = Ja[5, 5] = 1.0
         Jb[2, 2] = Jb[3, 3] = 1.0
-        if not coupled:
+        if not n_p:
             return Ja, Jb
-        Jb[6, 5] = -n
-        Jp = np.zeros((m, 1))
-        Jp[6, 0] = coupled_D
+        Jp = np.zeros((m, n_p))
+        if coupled:
+            Jb[6, 5] = -n
+            Jp[6, 0] = coupled_D
+        if free_A:
+            a, c, W = balance
+            Jb[m - 1, 4] = c / W
+            Jp[m - 1, n_p - 1] = 1.0 / (a * W)
         return Ja, Jb, Jp
 
     kwargs = dict(fun_jac=fun_jac, bc_jac=bc_jac, tol=tol, max_nodes=max_nodes)
+    if free_A:
+        # the balance's own conditions to BALANCE_RTOL (Newton meets them to round-off once it converges)
+        return solve_bvp(fun, bc, x0, y0, p=([B0] if coupled else []) + [A], bc_tol=1e-10, **kwargs)
     if coupled:
         return solve_bvp(fun, bc, x0, y0, p=[B0], **kwargs)
     return solve_bvp(fun, bc, x0, y0, **kwargs)
@@ -247,4 +273,41 @@ def solve_nlb_coupled(params: BeamParams, omega_t: float, *, guess: FlagellumSol
     return _to_solution(params, omega_t, res, B, reason)
 
 
-__all__ = ["BeamSolveError", "NLBSolveError", "solve_nlb", "solve_nlb_coupled", "DEFAULT_TOL", "BVPState"]
+def solve_nlb_balanced(params: BeamParams, omega_T: float, coupled: bool, omega_t0: float, *,
+                       guess: BVPState | None = None, tol: float = DEFAULT_TOL,
+                       max_nodes: int = MAX_NODES) -> FlagellumSolution | None:
+    """The flagellum at the omega_t that balances the torques of the robot at motor speed omega_T > 0 (rad/s):
+    omega_t an unknown of the BVP (through A), fixed by omega_t + n R_d F_x / c_torque = omega_T as a boundary
+    condition, v_h too if ``coupled`` (NLB; else NLB w/o head). One solve_bvp from ``guess`` (a converged
+    neighbour, scaled to omega_t0) or from the LB profile at omega_t0, without continuation: None if it does not
+    converge (balance.solve_balance then searches the root as before). The solution's omega_t is the balance."""
+    A0 = params.load_number(omega_t0)
+    kappa = params.kappa
+    D, n = params.head_drag_number, params.n
+    if guess is not None and guess.A > 0:
+        x0, y0, B0 = _scaled_guess(guess, A0)
+    else:
+        x0 = np.linspace(0.0, 1.0, INITIAL_NODES)
+        B0 = n * (1 - kappa) * A0 * A0 / 8 / (D + n * kappa) if coupled else 0.0
+        y0 = _linear_guess(x0, A0, B0, kappa)
+    a = params.load_number(1.0)                                       # A per rad/s of omega_t
+    c = params.n * params.R_d * params.EI / (params.L ** 2 * params.c_torque)   # rad/s per unit of I_x(1)
+    res = _attempt(A0, 0.0, kappa, x0, y0, coupled_D=D if coupled else None, n=n, B0=B0, tol=tol,
+                   max_nodes=max_nodes, balance=(a, c, float(omega_T)))
+    if not _accepted(res):
+        return None
+    # once more from the converged solution: solve_bvp stops its Newton iteration on the collocation residual,
+    # which can leave the unknown omega_t (and with it F_p, ~ omega_t^2) ~1e-6 relative short; the repeat makes
+    # F_x and F_p as accurate as a direct solve's at that omega_t (~1e-9, tests/test_beam_balance.py)
+    res = _attempt(float(res.p[-1]), 0.0, kappa, res.x, res.y, coupled_D=D if coupled else None, n=n,
+                   B0=float(res.p[0]) if coupled else None, tol=tol, max_nodes=max_nodes,
+                   balance=(a, c, float(omega_T)))
+    if not _accepted(res):
+        return None
+    A = float(res.p[-1])
+    B = float(res.p[0]) if coupled else 0.0
+    return _to_solution(params, params.omega_from_load_number(A), res, B, None)
+
+
+__all__ = ["BeamSolveError", "NLBSolveError", "solve_nlb", "solve_nlb_coupled", "solve_nlb_balanced", "DEFAULT_TOL",
+           "BVPState"]
