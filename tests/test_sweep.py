@@ -319,3 +319,23 @@ def test_a_sweep_names_a_built_in_scene_the_same_on_every_checkout(tmp_path):
     own.write_text("")
     assert portable_source(str(own)) == str(own)
     assert portable_source(None) is None
+
+
+def test_each_points_beam_rows_count_the_mass_of_that_points_robot():
+    """The cost of transport of the beam rows uses the robot of their own point (its mass built once per point
+    and shared by the regimes): points with 2 and 3 flagella, one after the other, each against its own network."""
+    from flagbot_sim.physics.network import build_network
+    from flagbot_sim.physics.observe import efficiency
+    from flagbot_sim.physics.medium import head_torque_coefficient
+    from flagbot_sim.scene import load_scene
+    from flagbot_sim.sweep.task import SteadySettings, make_task, run_point, task_scene
+    base = load_scene("design2", ["flagellum.length=0.05"])
+    settings = SteadySettings(t_max=20.0, window=1.0, rtol=1e-4)
+    for n in (2, 3, 2):
+        task = make_task(base, f"n{n}", {"robot.n_flagella": n}, settings, ("lb", "nlb-nohead", "nlb"))
+        scene = task_scene(task)
+        mass = float(build_network(scene).node_mass.sum())
+        for row in run_point(task)["rows"]:
+            torque = head_torque_coefficient(scene) * row["omega_h"]
+            expected = efficiency(torque, scene.omega_T, row["v"], mass)["cost_of_transport"]
+            assert row["cost_of_transport"] == pytest.approx(expected, rel=1e-12), (n, row["framework"])

@@ -178,13 +178,25 @@ def run_beam(scene: Scene, regime: str) -> dict:
             "wall_seconds": time.perf_counter() - w0}
 
 
+#: (scene, its robot's mass in kg): the beam regimes of one point share their scene, and building its rod network
+#: for the mass alone cost ~1 ms a regime
+_mass_of: tuple = (None, 0.0)
+
+
+def _robot_mass(scene: Scene) -> float:
+    global _mass_of
+    if _mass_of[0] is not scene:
+        from ..physics.network import build_network
+        _mass_of = (scene, float(build_network(scene).node_mass.sum()))
+    return _mass_of[1]
+
+
 def _beam_efficiency(scene: Scene, omega_h: float, v: float) -> dict:
-    from ..physics.network import build_network
     from ..physics.observe import efficiency
     torque = head_torque_coefficient(scene) * omega_h
     if not math.isfinite(torque):
         return {"motor_torque": math.nan, "power": math.nan, "cost_of_transport": math.nan}
-    eff = efficiency(torque, scene.omega_T, v, float(build_network(scene).node_mass.sum()))
+    eff = efficiency(torque, scene.omega_T, v, _robot_mass(scene))
     eff["cost_of_transport"] = _nan(eff["cost_of_transport"])
     return eff
 
