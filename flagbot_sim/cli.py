@@ -134,7 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser(command)
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        rc = int(args.func(args) or 0)
+        if from_command_line:
+            sys.stdout.flush()         # a block-buffered stdout meets a reader gone away here, not at the exit
+        return rc
     except BrokenPipeError:
         return broken_pipe_exit()
     except KeyboardInterrupt:      # Ctrl-C anywhere else (e.g. during the first compile): one line, not numba's stack

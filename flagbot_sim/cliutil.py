@@ -218,6 +218,12 @@ def fast_exit() -> None:
     been closed: it flushes stdout and stderr."""
     import gc
     import sys
-    sys.stdout.flush()
-    sys.stderr.flush()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except BrokenPipeError:        # its reader went away: nothing left to say to it
+            if stream is sys.stdout:
+                broken_pipe_exit()
+        except (OSError, ValueError):  # closed
+            pass
     gc.freeze()

@@ -193,15 +193,21 @@ def test_only_the_command_line_process_skips_its_final_collection():
 
 def test_a_reader_that_goes_away_is_no_traceback():
     """`flagbot scenes | head -1` and `sim_node --help | head -1`: the reader closes the pipe early; the writer
-    stops quietly (it printed a BrokenPipeError traceback)."""
+    stops quietly (it printed a BrokenPipeError traceback), with stdout unbuffered or block-buffered (a user's
+    shell: no PYTHONUNBUFFERED, so the broken pipe shows only at the last flush)."""
+    import os
     import subprocess
     import sys
     from pathlib import Path
     bindir = Path(sys.executable).parent
-    for cmd in (f"'{bindir / 'flagbot'}' scenes", f"'{bindir / 'sim_node'}' --help"):
-        p = subprocess.run(f"{cmd} | head -c 10 > /dev/null", shell=True, capture_output=True, text=True,
-                           timeout=60)
-        assert "Traceback" not in p.stderr and "BrokenPipe" not in p.stderr, (cmd, p.stderr)
+    for unbuffered in (True, False):
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+        if unbuffered:
+            env["PYTHONUNBUFFERED"] = "1"
+        for cmd in (f"'{bindir / 'flagbot'}' scenes", f"'{bindir / 'sim_node'}' --help"):
+            p = subprocess.run(f"{cmd} | head -c 10 > /dev/null", shell=True, capture_output=True, text=True,
+                               timeout=60, env=env)
+            assert "Traceback" not in p.stderr and "BrokenPipe" not in p.stderr, (cmd, unbuffered, p.stderr)
 
 
 def test_a_duration_shorter_than_a_step_is_refused_not_rounded_up():
