@@ -213,3 +213,127 @@ def test_a_degenerate_trial_configuration_is_rejected_not_raised():
     S = SteadySolver(model)
     res, _, _ = S.residual(q, st.frames, 1.0, 0.5, 0.0)
     assert not np.isfinite(res).all()
+
+
+# ---------------------------------------------------------------- hours of spinning
+TWO_PI = 2.0 * math.pi
+
+
+def _grow_angles(sim, k_edges: np.ndarray, k_drive: int) -> None:
+    """What hours of spinning do to the state, without the hours: every edge's twist angle k_e whole turns
+    further, its hinges' reference twists taking the turns back, the drive angle k_drive turns further (and the
+    motor hinge's reference twist with it): the same material frames and twist strains, far larger numbers."""
+    model = sim.model
+    net, el = model.net, model.elastic
+    n = 3 * net.n_nodes
+    c = k_edges * TWO_PI
+    he, sg = net.hinge_edges, el.sign
+    back = sg[:, 1] * c[he[:, 1]] - sg[:, 0] * c[he[:, 0]]
+    turns = k_drive * TWO_PI
+    back[model.twist_hinge] -= turns
+    states = [s for s in (sim.state, sim._prev_state) if s is not None]
+    for a in {id(a): a for s in states for a in (s.q, s.q_prev, s.q_prev2) if a is not None}.values():
+        a[n:] += c
+    for rt in {id(s.frames.ref_twist): s.frames.ref_twist for s in states}.values():
+        rt -= back
+    for s in states:
+        s.drive_angle += turns
+
+
+def _design1_at(omega_rpm: float, seconds: float):
+    sim = Simulation(load_scene("design1", ["robot.n_flagella=3"]))
+    sim.set_omega(omega_rpm * RPM)
+    sim.run(seconds)
+    return sim
+
+
+def test_whole_turns_taken_out_of_the_angles_change_no_motion():
+    """RobotModel.rebase_angles (whole turns out of every twist angle, given back to the reference twists, and
+    out of the drive angle): the same motion afterwards, through a command reversal, to Newton's tolerance; the
+    angles within half a turn; the motor angle reported still the whole integral of the command."""
+    a, b = _design1_at(150.0, 20.0), _design1_at(150.0, 20.0)
+    n = 3 * b.model.net.n_nodes
+    before = np.abs(b.state.q[n:]).max()
+    turns = b.model.rebase_angles([b.state, b._prev_state])
+    b.drive_offset += turns
+    assert before > 100.0 and np.abs(b.state.q[n:]).max() <= math.pi + 1e-9 and abs(b.state.drive_angle) <= math.pi
+    assert turns != 0.0 and b.motor_angle == pytest.approx(a.motor_angle, abs=1e-9)
+    for sim in (a, b):
+        sim.set_omega(-100 * RPM)
+        sim.run(3.0)
+    sa, sb = a.summary(), b.summary()
+    for key in ("omega_h", "omega_t", "v", "motor_torque"):
+        assert sb[key] == pytest.approx(sa[key], rel=1e-8), key
+    assert np.abs(a.positions() - b.positions()).max() < 1e-10
+    assert b.motor_angle == pytest.approx(a.motor_angle, abs=1e-8)
+    assert b.snapshot().drive_angle == pytest.approx(a.snapshot().drive_angle, abs=1e-8)
+    assert b.snapshot().phi_h == pytest.approx(a.snapshot().phi_h, rel=1e-9)
+
+
+def test_a_robot_spun_for_hours_still_converges_once_its_whole_turns_are_taken_out(monkeypatch):
+    """Angles grown to ~1.6e5 rad (design 1, n = 3 after ~4 simulated hours at 60-250 rpm): their round-off
+    (~3e-11 rad), through the stiff head and plate, leaves residuals Newton cannot bring to its tolerance: the
+    run fails at once (the symmetry itself is exact: with a few thousand turns it runs on unchanged). With the
+    simulator's own rebase (at the steady-state rule's samples) it reverses from -100 to +250 rpm like the
+    robot whose angles never grew."""
+    from flagbot_sim.physics import StepFailed
+    from flagbot_sim.physics import simulation as simulation_module
+    ref = _design1_at(-100.0, 20.0)
+    rng = np.random.default_rng(1)
+
+    def grown(k_max: int):
+        sim = _design1_at(-100.0, 20.0)
+        _grow_angles(sim, np.round(k_max * rng.uniform(-1.0, 1.0, sim.model.net.n_edges)), k_max)
+        return sim
+
+    monkeypatch.setattr(simulation_module, "REBASE_ANGLE", math.inf)         # no rebase
+    few = grown(3000)
+    few.set_omega(-100 * RPM)
+    few.run(1.0)
+    many = grown(25000)
+    many.set_omega(250 * RPM)
+    with pytest.raises(StepFailed):
+        many.run(1.0)
+    monkeypatch.undo()
+    fixed = grown(25000)
+    fixed.drive_offset += fixed.model.rebase_angles([fixed.state, fixed._prev_state])
+    for sim in (ref, fixed):
+        sim.set_omega(250 * RPM)
+        sim.run(3.0)
+    assert fixed.reductions == 0
+    for key in ("omega_h", "omega_t", "v"):
+        assert fixed.summary()[key] == pytest.approx(ref.summary()[key], rel=1e-7), key
+    ref_few = _design1_at(-100.0, 21.0)
+    assert few.summary()["omega_h"] == pytest.approx(ref_few.summary()["omega_h"], rel=1e-8)
+
+
+def test_the_angles_stay_bounded_and_both_stepping_paths_rebase_alike(monkeypatch):
+    """With a low threshold the rebase happens every few samples: the compiled batches and the step-by-step
+    code take the turns out after the same steps (the states and histories equal to the last bit), the angles
+    stay within the threshold plus a sample's spin, and the motor angle is the integral of the commands."""
+    from flagbot_sim.physics import simulation as simulation_module
+    monkeypatch.setattr(simulation_module, "REBASE_ANGLE", 20.0)
+    runs = []
+    for batched in (True, False):
+        sim = Simulation(load_scene("design2", ["flagellum.length=0.04"]), steady_window=0.2)
+        assert sim.stepper.can_advance(sim.dt, sim.omega_T)
+        integral = 0.0
+        for omega in (30.0, -20.0, 45.0):
+            sim.set_omega(omega)
+            if batched:
+                sim.run(2.0)
+            else:
+                for _ in range(int(round(2.0 / sim.dt))):
+                    sim.step()
+            integral += omega * 2.0
+        n = 3 * sim.model.net.n_nodes
+        assert sim.drive_offset != 0.0 and abs(sim.state.drive_angle) < 20.0 + 45.0 * 0.1 + 1e-9
+        assert np.abs(sim.state.q[n:]).max() < 20.0 + 45.0 * 0.1 + 2 * math.pi
+        assert sim.motor_angle == pytest.approx(integral, rel=1e-12)
+        runs.append(sim)
+    a, b = runs
+    assert a.drive_offset == b.drive_offset
+    for x, y in ((a.state.q, b.state.q), (a.state.v, b.state.v), (a.state.q_prev, b.state.q_prev),
+                 (a.state.frames.ref_twist, b.state.frames.ref_twist)):
+        assert np.array_equal(x, y)
+    assert np.array_equal(a.observer.history.rows(), b.observer.history.rows())

@@ -1,6 +1,7 @@
 """Simulation: one robot, its stepper, its observer; the facade the CLI, the ROS node and the sweeps drive."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections import deque
@@ -15,6 +16,10 @@ from .model import RobotModel
 from .observe import V_FLOOR, Observer, Snapshot, SteadyDetector, summary_fields
 from .newton import ADVANCED, BELOW_MIN_DT, FIXED_FAILED
 from .stepper import Stepper, StepStats
+
+#: rad: a twist angle or the drive angle beyond this has its whole turns taken out at the next sample of the
+#: steady-state rule (RobotModel.rebase_angles): its round-off stays ~1e-13 rad however long the run
+REBASE_ANGLE = 1024.0
 
 
 #: with error control the steady-state rule's tolerance is at most this fraction of time.rtol
@@ -56,6 +61,8 @@ class Simulation:
         self.last_stats = StepStats(dt_min=self.dt)
         self._prev_state = None
         self._buffers = None           # the compiled steps' arrays (advance), made at the first batch
+        #: rad: the whole turns taken out of the state's drive angle (_sample), part of the motor angle
+        self.drive_offset = 0.0
         self._zero_counters()
 
     def _switch_when_compiled(self) -> None:
@@ -132,7 +139,7 @@ class Simulation:
         while ve and ve[0][0] < new.t - self.steady_detector.window:
             ve.popleft()
         if self.steady_detector.due(new.t):
-            self.steady_detector.update(new.t, *self._steady_sample())
+            self._sample()
         # the step's whole cost, its observation included (a caller's callback is the caller's)
         self.wall_seconds += time.perf_counter() - w0
         return stats
@@ -171,7 +178,7 @@ class Simulation:
         if k:
             self._took(b, k)
             if det.due(self.state.t):
-                det.update(self.state.t, *self._steady_sample())
+                self._sample()
         self.wall_seconds += time.perf_counter() - w0
         if status == ADVANCED:
             return k
@@ -183,6 +190,16 @@ class Simulation:
         else:
             self.step(t_end=t_end, _python_first=True)
         return k + 1
+
+    def _sample(self) -> None:
+        """After the step at which the steady-state rule samples (step by step and in batches alike: batches end
+        there): its sample, and the whole turns taken out of angles grown beyond REBASE_ANGLE
+        (RobotModel.rebase_angles; the same steps either way, so the same numbers)."""
+        st = self.state
+        self.steady_detector.update(st.t, *self._steady_sample())
+        n = 3 * self.model.net.n_nodes
+        if abs(st.drive_angle) > REBASE_ANGLE or (len(st.q) > n and np.abs(st.q[n:]).max() > REBASE_ANGLE):
+            self.drive_offset += self.model.rebase_angles([st, self._prev_state])
 
     def _took(self, b, k: int) -> None:
         """Simulation.step's work after each of the k steps the compiled steps took into ``b``."""
@@ -255,6 +272,7 @@ class Simulation:
             self._omega = float(self.scene.omega_T)
         self.observer.reset(self.state)
         self.steady_detector.reset()
+        self.drive_offset = 0.0
         self._zero_counters()
 
     @property
@@ -263,8 +281,9 @@ class Simulation:
 
     @property
     def motor_angle(self) -> float:
-        """Integrated drive command (rad): the motor's natural-twist angle, or the clamp's rotation angle."""
-        return float(self.state.drive_angle)
+        """Integrated drive command (rad): the motor's natural-twist angle, or the clamp's rotation angle (with
+        the whole turns a long run took out of the state's: _sample)."""
+        return float(self.state.drive_angle + self.drive_offset)
 
     @property
     def steady(self) -> bool:
@@ -330,7 +349,10 @@ class Simulation:
 
     # ---------------------------------------------------------------- observations
     def snapshot(self) -> Snapshot:
-        return self.observer.snapshot(self.state, self._prev_state, self.omega_T, self.motor_torque())
+        snap = self.observer.snapshot(self.state, self._prev_state, self.omega_T, self.motor_torque())
+        if self.drive_offset:                          # the motor angle published: the whole integral
+            snap = dataclasses.replace(snap, drive_angle=snap.drive_angle + self.drive_offset)
+        return snap
 
     def positions(self) -> np.ndarray:
         return self.observer.x(self.state)
