@@ -85,12 +85,15 @@ def test_page_matches_the_live_node(ros, node_name):
         for r in doc["topics"]:
             for field in message_class(r["type"]).get_fields_and_field_types():
                 assert f"`{field}`" in r["fields"], f"{r['topic']}: field {field} not described"
-        # services
-        services = {(s, ty[0]) for s, ty in ros.get_service_names_and_types_by_node(node_name, "/")
+        # services: discovered on their own schedule (a loaded machine showed the topics before them)
+        def services():
+            return {(s, ty[0]) for s, ty in ros.get_service_names_and_types_by_node(node_name, "/")
                     if not s.endswith(STANDARD_SERVICE_SUFFIXES)}
         # a page writes a private service as ~/name: the node's own namespace, /<node name>/name
-        assert services == {(f"/{node_name}/{name(r['service'])[2:]}" if name(r["service"]).startswith("~/")
-                             else f"/{name(r['service'])}", r["type"]) for r in doc["services"]}
+        documented_services = {(f"/{node_name}/{name(r['service'])[2:]}" if name(r["service"]).startswith("~/")
+                                else f"/{name(r['service'])}", r["type"]) for r in doc["services"]}
+        spin_until(ros, lambda: documented_services <= services(), DISCOVERY_TIMEOUT, f"{node_name}'s services")
+        assert services() == documented_services
         # parameters: names, types, defaults and ranges
         descs = {k: v for k, v in describe_all_params(ros, node_name).items() if k not in STANDARD_PARAMS}
         documented_params = {name(r["parameter"]): r for r in doc["parameters"]}
