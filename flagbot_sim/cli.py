@@ -119,7 +119,7 @@ def one_line(message: str, limit: int = MAX_ERROR_CHARS) -> str:
 
 
 #: commands that hold no open resource when they return, so their process may skip the final garbage collection
-FAST_EXIT = frozenset({"run", "scenes", "compile", "beam", "sweep-plot", "completion"})
+FAST_EXIT = frozenset({"run", "scenes", "compile", "beam", "sweep", "sweep-plot", "completion"})
 
 
 def main(argv: list[str] | None = None) -> int:

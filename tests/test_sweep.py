@@ -339,3 +339,24 @@ def test_each_points_beam_rows_count_the_mass_of_that_points_robot():
             torque = head_torque_coefficient(scene) * row["omega_h"]
             expected = efficiency(torque, scene.omega_T, row["v"], mass)["cost_of_transport"]
             assert row["cost_of_transport"] == pytest.approx(expected, rel=1e-12), (n, row["framework"])
+
+
+def test_a_sweep_from_the_command_line_ends_fast_with_everything_written(tmp_path):
+    """`flagbot sweep` ends as the compute-only commands do (cli.FAST_EXIT: the final garbage collection skipped),
+    so nothing it wrote may depend on that collection: the whole process leaves every point's rows, the summary
+    and the figures behind."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+    out = tmp_path / "out"
+    flagbot = Path(sys.executable).parent / "flagbot"
+    p = subprocess.run([str(flagbot), "sweep", "design2", "--set", "flagellum.length=0.05", "--grid", "rpm=40,80",
+                        "--frameworks", "der,lb", "--out", str(out), "--quiet"], capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 0, p.stderr
+    rows = read_results(out)
+    assert len(rows) == 4 and {(r["framework"], r["omega_T_rpm"]) for r in rows} == \
+        {(f, rpm) for f in ("der", "lb") for rpm in (40.0, 80.0)}
+    assert json.loads((out / "summary.json").read_text())["groups"]
+    assert (out / "speed_vs_omega.png").stat().st_size > 1000
