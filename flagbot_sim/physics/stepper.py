@@ -257,11 +257,6 @@ def continuations(state: State, h: float, axis_nodes: tuple[int, int, int], n_no
     return q, (q1 if second else None)
 
 
-def predict(state: State, h: float, axis_nodes: tuple[int, int, int], n_nodes: int) -> np.ndarray:
-    """The second-order continuation of :func:`continuations`."""
-    return continuations(state, h, axis_nodes, n_nodes)[0]
-
-
 def axis_nodes(net) -> tuple[int, int, int]:
     """(front, centre, back) points of the robot axis for the predictor: the head, or the plate centre alone."""
     return tuple(int(i) for i in net.head_nodes) if len(net.head_nodes) else (int(net.joint_node),) * 3

@@ -126,11 +126,11 @@ def _warm_time_stepping() -> None:
     from .frames import angle3
     from .model import State
     from .newton import error_sums, residual_norms, robot_pose
-    from .stepper import axis_nodes, predict
+    from .stepper import axis_nodes, continuations
     net, q, x, t, length, d1, d2 = _tiny_network()
     v = np.zeros_like(q)
     st = State(0.0, q, v, None, 0.0, 1e-2, 1e-2, q.copy(), v.copy(), q.copy())
-    predict(st, 1e-2, axis_nodes(net), net.n_nodes)
+    continuations(st, 1e-2, axis_nodes(net), net.n_nodes)
     residual_norms(v, v)
     error_sums(v, v, v, v)
     i0, _, i2 = axis_nodes(net)

@@ -161,14 +161,16 @@ def run_der_time(scene: Scene, settings: SteadySettings) -> dict:
     return out
 
 
-def run_beam(scene: Scene, regime: str) -> dict:
+def run_beam(scene: Scene, regime: str, mass: float) -> dict:
+    """One beam regime's balance at the scene's motor speed as a row; ``mass``: the robot's (robot_mass), which
+    the regimes of one point share."""
     from ..beam import BeamParams, solve_balance
 
     w0 = time.perf_counter()
     # no warm start from a neighbouring point: each point must not depend on which others ran before it
     res = solve_balance(BeamParams.from_scene(scene), scene.omega_T, regime=regime, raise_on_failure=False)
     # the motor's torque is the head's Stokes torque at the balance
-    eff = _beam_efficiency(scene, res.omega_h, res.v_h)
+    eff = _beam_efficiency(scene, res.omega_h, res.v_h, mass)
     return {"framework": regime, "omega_h": res.omega_h, "omega_t": res.omega_t, "v": res.v_h,
             "method": "beam", "stable": "", "residual": math.nan, **eff,
             "omega_T_bar": res.omega_T_bar, "omega_h_bar": res.omega_h_bar, "v_bar": res.v_bar,
@@ -178,25 +180,18 @@ def run_beam(scene: Scene, regime: str) -> dict:
             "wall_seconds": time.perf_counter() - w0}
 
 
-#: (scene, its robot's mass in kg): the beam regimes of one point share their scene, and building its rod network
-#: for the mass alone cost ~1 ms a regime
-_mass_of: tuple = (None, 0.0)
+def robot_mass(scene: Scene) -> float:
+    """The robot's mass (kg): its rod network's node masses."""
+    from ..physics.network import build_network
+    return float(build_network(scene).node_mass.sum())
 
 
-def _robot_mass(scene: Scene) -> float:
-    global _mass_of
-    if _mass_of[0] is not scene:
-        from ..physics.network import build_network
-        _mass_of = (scene, float(build_network(scene).node_mass.sum()))
-    return _mass_of[1]
-
-
-def _beam_efficiency(scene: Scene, omega_h: float, v: float) -> dict:
+def _beam_efficiency(scene: Scene, omega_h: float, v: float, mass: float) -> dict:
     from ..physics.observe import efficiency
     torque = head_torque_coefficient(scene) * omega_h
     if not math.isfinite(torque):
         return {"motor_torque": math.nan, "power": math.nan, "cost_of_transport": math.nan}
-    eff = efficiency(torque, scene.omega_T, v, _robot_mass(scene))
+    eff = efficiency(torque, scene.omega_T, v, mass)
     eff["cost_of_transport"] = _nan(eff["cost_of_transport"])
     return eff
 
@@ -211,9 +206,14 @@ def run_point(task: dict) -> dict:
     common = {"point": task["point"], "n": scene.robot.n_flagella, "L": scene.flagellum.length,
               "omega_T": scene.omega_T, "omega_T_rpm": scene.motor.omega_rpm}
     rows = []
+    mass = None                 # the robot's, built once for the beam rows (~1 ms a regime)
     for fw in task["frameworks"]:
         try:
-            row = run_der(scene, settings) if fw == "der" else run_beam(scene, fw)
+            if fw == "der":
+                row = run_der(scene, settings)
+            else:
+                mass = robot_mass(scene) if mass is None else mass
+                row = run_beam(scene, fw, mass)
         except Exception as exc:   # noqa: BLE001 -- recorded in the CSV, the rest of the sweep goes on
             nan = math.nan
             row = {"framework": fw, "omega_h": nan, "omega_t": nan, "v": nan, "motor_torque": nan, "power": nan,
