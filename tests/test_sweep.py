@@ -360,3 +360,18 @@ def test_a_sweep_from_the_command_line_ends_fast_with_everything_written(tmp_pat
         {(f, rpm) for f in ("der", "lb") for rpm in (40.0, 80.0)}
     assert json.loads((out / "summary.json").read_text())["groups"]
     assert (out / "speed_vs_omega.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("its_fork_server", [True, False])
+def test_only_the_sweeps_own_fork_server_skips_the_interpreters_teardown(its_fork_server):
+    """The fork server (a child of the sweep, which names itself in the environment: engines._context) ends
+    without the interpreter's teardown, which only kept the sweep's output pipes open ~0.3 s after the sweep ended;
+    any other process that imports the preload module keeps its exit handlers."""
+    from flagbot_sim.sweep.engines import FORK_SERVER_PARENT_ENV
+    code = ("import atexit\n"
+            "atexit.register(print, 'exit handlers ran', flush=True)\n"
+            "import flagbot_sim.sweep.preload\n")
+    env = dict(os.environ, **{FORK_SERVER_PARENT_ENV: str(os.getpid() if its_fork_server else 1)})
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert ("exit handlers ran" in p.stdout) is not its_fork_server

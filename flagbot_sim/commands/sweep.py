@@ -7,6 +7,7 @@ import sys
 import time
 
 from ..sweep.engines import ENGINES, default_workers, run_tasks, worker_count
+from ..sweep.engines import start as start_engine
 from ..sweep.grid import SweepError, parse_grid, validate
 from ..sweep.store import SweepStore, manifest_identity
 from ..sweep.task import FRAMEWORKS, SteadySettings, make_task
@@ -127,6 +128,7 @@ def cmd_sweep(args) -> int:
                               "command": sys.argv[1:]}, scene_toml=base.to_toml())
     pending = store.pending()
     workers = worker_count(args.engine, args.workers, len(pending))     # what run_tasks will start
+    start_engine(args.engine, len(pending))          # the local engine's fork server loads while we go on
     where = args.scheduler or ("this process" if args.engine == "serial" else f"{workers} worker(s)")
     print(f"sweep {base.scene.name}: {len(points)} points x {len(frameworks)} frameworks; "
           f"{len(points) - len(pending)} already in {store.csv_path}; computing {len(pending)} "

@@ -260,6 +260,17 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
 
 #: what every model needs: its frames and its springs
 MODEL_GROUPS = ("frames", "stretch", "bend_twist", "bend_twist_global")
+
+
+def solve_groups() -> list[str]:
+    """Every group a steady solve of any scene may use (:func:`groups_for` with ``time_stepping=False``, over
+    every effect): the frames, the springs and each effect's kernels, none of the time-stepping ones. What the
+    sweeps' fork server loads once for all its workers, whatever scene their points have."""
+    from .effects import EFFECT_TYPES
+    names = list(MODEL_GROUPS)
+    for effect in EFFECT_TYPES.values():
+        names.extend(effect.kernel_groups)
+    return list(dict.fromkeys(names))
 #: the helper process's start in the units of ``Group.weight``, forked or as a fresh interpreter (which imports
 #: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s; with 0.15 a cold
 #: design 1 splits as measured best (2026-12-07, the bend-twist springs in two groups: the helper's four groups

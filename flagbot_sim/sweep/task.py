@@ -91,7 +91,9 @@ def run_der_steady(scene: Scene) -> dict:
     from ..physics.model import RobotModel
     from ..physics.steady import SteadySolver, summary
 
-    warmup.ensure_compiled()
+    # the kernels a steady solve calls (a fork server's workers have them already); a point that falls back to
+    # time stepping loads the others in its Simulation
+    warmup.ensure_compiled(groups=warmup.groups_for(scene, time_stepping=False))
     w0 = time.perf_counter()
     scene, _ = error_estimate.resolve_accuracy(scene)      # accuracy.rtol: the edge length it chooses
     model = RobotModel(scene)
