@@ -114,7 +114,8 @@ class _BorderedPattern:
     rigid-motion field's derivatives, whose structure is fixed), bordered by the columns Kv dv/domega_t +
     Ka da/domega_t and Kv dv/dU and the two gauge rows (free robot), with identity rows for prescribed DOFs. Every
     contribution's target slot is precomputed, so each assembly is products of arrays and one ``np.bincount``:
-    no sparse products, no format conversions."""
+    no sparse products, no format conversions. So is a fill-reducing column order for the factorisations
+    (:meth:`factor`)."""
 
     def __init__(self, pattern, N: int, n_edges: int, head: np.ndarray, tail: np.ndarray, fixed: np.ndarray,
                  gauge: np.ndarray, bordered: bool):
@@ -168,6 +169,28 @@ class _BorderedPattern:
         self.scol = scol
         self.bordered = bordered
         self._ones = np.ones(sizes[-1] + (sizes[-2] if bordered else 0))
+        # SuperLU's minimum degree ordering of A + A^T depends on the structure alone: found once here, on values
+        # drawn from a fixed seed, and every factorisation (:meth:`factor`) takes the columns in that order
+        probe = sp.csc_matrix((np.random.default_rng(0).standard_normal(self.nnz), self.indices.copy(),
+                               self.indptr.copy()), shape=(n, n))
+        perm_c = spla.splu(probe, permc_spec="MMD_AT_PLUS_A").perm_c
+        order = np.empty(n, np.int64)
+        order[perm_c] = np.arange(n)
+        #: the columns of the Jacobian in factorisation order, and the CSC slots of the matrix so permuted
+        self.order = order
+        counts = np.diff(self.indptr.astype(np.int64))[order]
+        starts = self.indptr[order].astype(np.int64)
+        self.order_slots = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+        self.order_indices = self.indices[self.order_slots]
+        self.order_indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+
+    def factor(self, A: sp.csc_matrix) -> "_OrderedLU":
+        """SuperLU's factors of ``A`` (on this pattern), its columns in the fill-reducing order found at
+        construction (no ordering per factorisation; one-column panels and no relaxed supernodes, which for
+        matrices this small cost less than they save). Raises RuntimeError if ``A`` is singular."""
+        P = sp.csc_matrix((A.data[self.order_slots], self.order_indices, self.order_indptr), shape=A.shape)
+        return _OrderedLU(spla.splu(P, permc_spec="NATURAL", panel_size=1, relax=1), self.order)
+
 
     @staticmethod
     def dv_values(Om_n: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -187,6 +210,20 @@ class _BorderedPattern:
         data = np.bincount(self.target, np.concatenate(parts), minlength=self.nnz + 1)[: self.nnz]
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
 
+
+
+class _OrderedLU:
+    """Factors of a Jacobian whose columns were taken in the order ``order`` (:meth:`_BorderedPattern.factor`):
+    ``solve(b)`` is A^-1 b in the Jacobian's own unknowns."""
+    __slots__ = ("lu", "order")
+
+    def __init__(self, lu, order: np.ndarray):
+        self.lu, self.order = lu, order
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        x = np.empty(len(self.order))
+        x[self.order] = self.lu.solve(b)
+        return x
 
 
 #: _BorderedPattern of each structure built in this process (a sweep's points share a few): key -> pattern
@@ -506,7 +543,7 @@ class SteadySolver:
             else:
                 _, A, _ = self.system(q, committed, omega_T, omega_t, U)
                 try:
-                    lu = spla.splu(A, permc_spec="COLAMD")
+                    lu = self._pattern.factor(A)
                 except RuntimeError as exc:
                     raise SteadyFailed(f"singular Jacobian at omega_T = {omega_T:.6g} rad/s: {exc}") from None
                 dz = -lu.solve(np.concatenate([r, g]))
@@ -709,8 +746,10 @@ class SteadySolver:
         n = A.shape[0]
         # shift-invert about sigma (mu = sigma + 1/theta)
         sigma = problem.shift(omega_t)
-        P = A if sigma == 0.0 else (A + sigma * D + sigma ** 2 * Mm).tocsc()
-        lu = spla.splu(P, permc_spec="COLAMD")
+        if sigma == 0.0:
+            lu = self._pattern.factor(A)
+        else:
+            lu = spla.splu((A + sigma * D + sigma ** 2 * Mm).tocsc(), permc_spec="COLAMD")
         if Mm.nnz:
             def matvec(y):
                 z, w = y[:n], y[n:]
