@@ -146,3 +146,24 @@ def test_arpack_gets_the_tuned_krylov_space(monkeypatch):
     monkeypatch.setattr(steady.spla, "eigs", spy)
     st = S.stability(sol, vectors=False)
     assert seen and seen[0] == steady.ARNOLDI_VECTORS and st.neutral == 4
+
+
+def test_models_of_one_structure_share_their_sparse_pattern_and_evaluate_the_same():
+    """RobotModel takes its Jacobian pattern from assembly.shared_pattern: built once per block structure (~0.8 ms
+    a model), the same object for every model of the structure, another for another structure; a model built on
+    the shared pattern evaluates exactly as one built on its own."""
+    from flagbot_sim.physics import assembly
+    a = RobotModel(load_scene("design1", ["motor.omega_rpm=50"]))
+    b = RobotModel(load_scene("design1", ["motor.omega_rpm=200"]))
+    c = RobotModel(load_scene("design1", ["robot.n_flagella=3"]))
+    assert a.pattern is b.pattern and a.pattern is not c.pattern
+    S = SteadySolver(b)
+    sc = b.scene
+    q, w, U = S.initial_guess(sc.omega_T)
+    r1, A1, _ = S.system(q, b.elastic.frames0.copy(), sc.omega_T, w, U)
+    assembly._PATTERNS.clear()
+    own = RobotModel(load_scene("design1", ["motor.omega_rpm=200"]))
+    assert own.pattern is not b.pattern
+    S2 = SteadySolver(own)
+    r2, A2, _ = S2.system(q, own.elastic.frames0.copy(), sc.omega_T, w, U)
+    assert np.array_equal(r1, r2) and np.array_equal(A1.toarray(), A2.toarray())

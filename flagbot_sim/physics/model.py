@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .assembly import SparsePattern
+from .assembly import shared_pattern
 from .effects import EFFECT_TYPES, Driver, Effect, StepContext
 from .elastic import ElasticModel
 from .frames import EdgeFrames
@@ -78,7 +78,7 @@ class RobotModel:
             b = eff.blocks()
             ranges.append((len(blocks), len(blocks) + len(b)))
             blocks.extend(b)
-        self.pattern = SparsePattern(self.ndof, blocks)
+        self.pattern = shared_pattern(self.ndof, blocks)        # one per structure, shared: read it only
         self.elastic.set_slots(self.pattern.slots[0], self.pattern.slots[1])
         for eff, (b0, b1) in zip(self.effects, ranges):
             eff.bind(self.pattern.slots[b0:b1])
