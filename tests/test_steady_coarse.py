@@ -167,3 +167,36 @@ def test_models_of_one_structure_share_their_sparse_pattern_and_evaluate_the_sam
     S2 = SteadySolver(own)
     r2, A2, _ = S2.system(q, own.elastic.frames0.copy(), sc.omega_T, w, U)
     assert np.array_equal(r1, r2) and np.array_equal(A1.toarray(), A2.toarray())
+
+
+def test_newton_assembles_straight_into_the_factorisation_order_and_evaluates_the_effects_once_less(monkeypatch):
+    """Newton's Jacobian is assembled into the factorisation's column order (values(ordered=True)): each entry the
+    same sum as the matrix in the unknowns' order, so the same factors; and the springs are added to the effects'
+    part already evaluated (residual_and_jacobian(effects_jacobian=...)), the same numbers as evaluating it anew:
+    three evaluations of the effects' Jacobians per Newton Jacobian instead of four."""
+    sc, S, _ = _solvers("design2", ["robot.n_flagella=3", "motor.omega_rpm=100"])
+    model = S.model
+    q, w, U = S.initial_guess(sc.omega_T)
+    fr = model.elastic.trial_frames(q, model.elastic.frames0.copy())
+    fields = S.fields(q, fr.t, sc.omega_T, w, U)
+    ctx = S._context(q, fr, fields[0], fields[1], 0.0, 0.0)
+    r0, J0 = model.residual_and_jacobian(ctx)
+    r1, J1 = model.residual_and_jacobian(ctx, effects_jacobian=model.jacobian(ctx, springs=False))
+    assert np.array_equal(r0, r1) and np.array_equal(J0, J1)
+    lin = S._linear(q, model.elastic.frames0.copy(), sc.omega_T, w, U)
+    A = S._assemble(lin)
+    _, _, dv_dw, da_dw, dv_dU = lin.fields
+    ordered = S._pattern.values(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals, dv_dw, da_dw, dv_dU, ordered=True)
+    assert np.array_equal(ordered, A.data[S._pattern.order_slots])
+    b = np.random.default_rng(2).standard_normal(A.shape[0])
+    assert np.array_equal(S._factor(lin).solve(b), S._pattern.factor(A).solve(b))
+    calls = []
+    effect = model.effects[0]
+    add_jacobian = effect.add_jacobian
+
+    def counting(ctx, J):
+        calls.append((ctx.dv_dq, ctx.da_dq))
+        return add_jacobian(ctx, J)
+    monkeypatch.setattr(effect, "add_jacobian", counting)
+    S._linear(q, model.elastic.frames0.copy(), sc.omega_T, w, U)
+    assert calls == [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)]

@@ -230,11 +230,16 @@ class RobotModel:
             self.elastic.accumulate(ctx.q, ctx.frames, np.zeros(self.ndof), J, self.twist_hinge, ctx.drive_angle)
         return J
 
-    def residual_and_jacobian(self, ctx: StepContext) -> tuple[np.ndarray, np.ndarray]:
+    def residual_and_jacobian(self, ctx: StepContext, effects_jacobian: np.ndarray | None = None
+                              ) -> tuple[np.ndarray, np.ndarray]:
+        """The residual and the Jacobian's CSC data at the context. ``effects_jacobian``: the effects' part at this
+        context, already evaluated (:meth:`jacobian` with ``springs=False``): the springs' part is added to a copy
+        of it instead of evaluating the effects again (the same numbers: the effects add first either way)."""
         r = np.zeros(self.ndof)
-        J = np.zeros(self.pattern.nnz)
+        J = np.zeros(self.pattern.nnz) if effects_jacobian is None else effects_jacobian.copy()
         for eff in self.effects:
             eff.add_force(ctx, r)
-            eff.add_jacobian(ctx, J)
+            if effects_jacobian is None:
+                eff.add_jacobian(ctx, J)
         self.elastic.accumulate(ctx.q, ctx.frames, r, J, self.twist_hinge, ctx.drive_angle)
         return r, J

@@ -186,12 +186,20 @@ class _BorderedPattern:
         self.order_slots = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
         self.order_indices = self.indices[self.order_slots]
         self.order_indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        in_order = np.full(self.nnz + 1, self.nnz)          # (the discarded bin stays where it is)
+        in_order[self.order_slots] = np.arange(self.nnz)
+        self._ordered_target = in_order[target]
 
     def factor(self, A: sp.csc_matrix) -> "_OrderedLU":
         """SuperLU's factors of ``A`` (on this pattern), its columns in the fill-reducing order found at
         construction (no ordering per factorisation; one-column panels and no relaxed supernodes, which for
         matrices this small cost less than they save). Raises RuntimeError if ``A`` is singular."""
-        P = sp.csc_matrix((A.data[self.order_slots], self.order_indices, self.order_indptr), shape=A.shape)
+        return self.factor_values(A.data[self.order_slots])
+
+    def factor_values(self, data: np.ndarray) -> "_OrderedLU":
+        """:meth:`factor` of the matrix whose CSC data in the factorisation's column order is ``data`` (what
+        :meth:`values` gives with ``ordered=True``)."""
+        P = sp.csc_matrix((data, self.order_indices, self.order_indptr), shape=(self.n, self.n))
         return _OrderedLU(spla.splu(P, permc_spec="NATURAL", panel_size=1, relax=1), self.order)
 
     @staticmethod
@@ -199,11 +207,16 @@ class _BorderedPattern:
         """Dv's values: dv/dx = Omega [e_x]x on the nodes; the twist rates' d(Omega_e e_x.t_e)/dx = +-g."""
         return np.concatenate([-Om_n, Om_n, g[:, 0], g[:, 1], g[:, 2], -g[:, 0], -g[:, 1], -g[:, 2]])
 
-    def assemble(self, J00, Kv, Ka, dv_vals, da_vals, dv_dw=None, da_dw=None, dv_dU=None,
-                 identity: bool = True) -> sp.csc_matrix:
-        """The Jacobian as a CSC matrix (``Ka``/``da_*`` None: without the inertia terms). ``identity=False``:
-        without the gauge rows' and the prescribed DOFs' ones (the linearisation's damping, whose bordered form
-        is J00 + Kv Dv with the same border columns, is assembled here too)."""
+    def assemble(self, *args, **kwargs) -> sp.csc_matrix:
+        """The Jacobian as a CSC matrix (arguments: :meth:`values`')."""
+        return sp.csc_matrix((self.values(*args, **kwargs), self.indices, self.indptr), shape=(self.n, self.n))
+
+    def values(self, J00, Kv, Ka, dv_vals, da_vals, dv_dw=None, da_dw=None, dv_dU=None, identity: bool = True,
+               ordered: bool = False) -> np.ndarray:
+        """The Jacobian's CSC data (``Ka``/``da_*`` None: without the inertia terms); ``ordered``: the data of the
+        matrix with its columns in the factorisation's order (:meth:`factor_values`), each entry the same sum.
+        ``identity=False``: without the gauge rows' and the prescribed DOFs' ones (the linearisation's damping,
+        whose bordered form is J00 + Kv Dv with the same border columns, is assembled here too)."""
         parts = [J00, Kv[self.kv_slots] * dv_vals[self.kv_m]]
         parts.append(Ka[self.ka_slots] * da_vals[self.ka_m] if Ka is not None else np.zeros(self.sizes[2]))
         if self.bordered:
@@ -212,8 +225,8 @@ class _BorderedPattern:
                 w = w + Ka * da_dw[self.scol]
             parts += [w, Kv * dv_dU[self.scol]]
         parts.append(self._ones if identity else np.zeros(len(self._ones)))
-        data = np.bincount(self.target, np.concatenate(parts), minlength=self.nnz + 1)[: self.nnz]
-        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+        target = self._ordered_target if ordered else self.target
+        return np.bincount(target, np.concatenate(parts), minlength=self.nnz + 1)[: self.nnz]
 
     def embed(self, K: np.ndarray) -> sp.csc_matrix:
         """A matrix on the model's pattern (CSC data ``K``) as one on this pattern, its prescribed rows dropped."""
@@ -482,8 +495,8 @@ class SteadySolver:
         fr = model.elastic.trial_frames(q, committed)
         fields = self.fields(q, fr.t, omega_T, omega_t, U)
         ctx = self._context(q, fr, fields[0], fields[1], 0.0, 0.0)
-        r, J00 = model.residual_and_jacobian(ctx)
         E00 = model.jacobian(ctx, springs=False)                     # the effects' part of J00
+        r, J00 = model.residual_and_jacobian(ctx, effects_jacobian=E00)
         ctx.dv_dq, ctx.da_dq = 1.0, 0.0
         Kv = model.jacobian(ctx, springs=False) - E00                # dR/dv
         ctx.dv_dq, ctx.da_dq = 0.0, 1.0
@@ -495,6 +508,13 @@ class SteadySolver:
     def _assemble(self, lin: _Linear) -> sp.csc_matrix:
         _, _, dv_dw, da_dw, dv_dU = lin.fields
         return self._pattern.assemble(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals, dv_dw, da_dw, dv_dU)
+
+    def _factor(self, lin: _Linear):
+        """The Jacobian's factors (:meth:`_BorderedPattern.factor_values`), assembled straight into the
+        factorisation's column order (no matrix in the unknowns' order is formed)."""
+        _, _, dv_dw, da_dw, dv_dU = lin.fields
+        return self._pattern.factor_values(self._pattern.values(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals,
+                                                                dv_dw, da_dw, dv_dU, ordered=True))
 
     def system(self, q, committed: EdgeFrames, omega_T, omega_t, U):
         """Residual and Jacobian of the bordered system in the problem's unknowns: (q, omega_t, U) (free robot) or
@@ -545,9 +565,9 @@ class SteadySolver:
                 # contracted at least 50x, so a fresh Jacobian would buy little (simplified Newton)
                 dz, dz_next = dz_next, None
             else:
-                _, A, _ = self.system(q, committed, omega_T, omega_t, U)
+                lin = self._linear(q, committed, omega_T, omega_t, U)
                 try:
-                    lu = self._pattern.factor(A)
+                    lu = self._factor(lin)
                 except RuntimeError as exc:
                     raise SteadyFailed(f"singular Jacobian at omega_T = {omega_T:.6g} rad/s: {exc}") from None
                 dz = -lu.solve(np.concatenate([r, g]))
