@@ -251,3 +251,29 @@ def test_figures_drawn_by_two_processes_are_the_figures_drawn_by_one(sweep_dir, 
     assert names == [os.path.basename(p) for p in o2["figures"]] and len(names) == 7
     for name in names + ["summary.json"]:
         assert (d1 / name).read_bytes() == (d2 / name).read_bytes(), name
+
+
+def test_the_speed_figure_is_saved_with_the_layout_its_letters_were_placed_in(tmp_path, monkeypatch):
+    """figure_speed lays itself out (at the resolution it is saved at) to measure where its letters go; saving it
+    then draws that layout as it is, without laying it out a second time (a third full drawing of the figure)."""
+    from matplotlib.layout_engine import ConstrainedLayoutEngine
+
+    from flagbot_sim.plotlabels import renderer_of, text_box
+    from flagbot_sim.sweep.plots import DPI
+    x = np.arange(0.0, 11.0)
+    rows = [row("der", 2, xi, xi) for xi in x] + [row("der", 3, xi, 2 * xi - 5) for xi in x]
+    fig = figure_speed(rows)
+    assert fig.dpi == DPI
+    ax = fig.axes[0]
+    before = ax.get_position().bounds
+    (letter,) = [t for t in ax.texts if t.get_text() == "C"]
+    measured = text_box(letter, renderer_of(fig))
+    layouts = []
+    original = ConstrainedLayoutEngine.execute
+    monkeypatch.setattr(ConstrainedLayoutEngine, "execute", lambda self, f: layouts.append(f) or original(self, f))
+    fig.savefig(tmp_path / "speed.png", dpi=DPI)
+    assert layouts == []
+    assert ax.get_position().bounds == before
+    saved = text_box(letter, renderer_of(fig))
+    assert (saved.x0, saved.y0, saved.x1, saved.y1) == pytest.approx((measured.x0, measured.y0, measured.x1,
+                                                                      measured.y1), abs=1e-9)
