@@ -15,8 +15,6 @@ import importlib
 import sys
 
 from .cliutil import add_version_argument, broken_pipe_exit, fast_exit
-from .commands import compile as compile_command, completion, run, scenes   # small, and always listed
-from .scene import SceneError
 
 #: command -> (module whose register(subparsers) adds it, one-line help for ``flagbot --help``)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -75,6 +73,7 @@ def _placeholder(command: str, module: str):
     """``func`` of a command listed only for --help (never reached: the real parser is built when the
     command is on the command line)."""
     def run(args) -> int:
+        from .scene import SceneError
         raise SceneError(f"flagbot {command}: the module that provides it ({module}) is not installed")
     return run
 
@@ -87,6 +86,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     sub-parser. ``"*"`` or an unknown name: every module is imported (the old behaviour; an unknown name then gets
     argparse's own "invalid choice" message listing everything).
     """
+    from .commands import compile as compile_command, completion, run, scenes   # small, and always listed
     parser = argparse.ArgumentParser(prog="flagbot", description="flagbot_sim: soft flagellated robot simulator")
     add_version_argument(parser, "flagbot")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -131,6 +131,11 @@ def main(argv: list[str] | None = None) -> int:
         single_threaded_process()          # small matrices everywhere: BLAS threads only spin (physics/blas.py)
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _command_in(argv)
+    if from_command_line and command == "sweep":
+        from . import workers
+        if workers.wants_local_engine(argv[argv.index(command) + 1:]):
+            workers.start()             # its workers load (~1.3 s) while this process imports and reads its scene
+    from .scene import SceneError
     parser = build_parser(command)
     args = parser.parse_args(argv)
     try:

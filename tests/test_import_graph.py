@@ -32,7 +32,7 @@ LAYERS = [
               "flagbot_sim.progress", "flagbot_sim.optional", "flagbot_sim.pacer", "flagbot_sim.scenes",
               "flagbot_sim.units", "flagbot_sim.fields", "flagbot_sim.scene_files"]),
     ("physics", ["flagbot_sim.physics", "flagbot_sim.scene", "flagbot_sim.kernels", "flagbot_sim.reference"]),
-    ("support", ["flagbot_sim.cliutil", "flagbot_sim.bag", "flagbot_sim.motor_profile", "flagbot_sim.urdf",
+    ("support", ["flagbot_sim.cliutil", "flagbot_sim.workers", "flagbot_sim.bag", "flagbot_sim.motor_profile", "flagbot_sim.urdf",
                  "flagbot_sim.tf_tree", "flagbot_sim.values"]),
     ("libraries", ["flagbot_sim.beam", "flagbot_sim.sweep", "flagbot_sim.fit", "flagbot_sim.runs",
                    "flagbot_sim.device"]),

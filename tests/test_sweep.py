@@ -364,10 +364,10 @@ def test_a_sweep_from_the_command_line_ends_fast_with_everything_written(tmp_pat
 
 @pytest.mark.parametrize("its_fork_server", [True, False])
 def test_only_the_sweeps_own_fork_server_skips_the_interpreters_teardown(its_fork_server):
-    """The fork server (a child of the sweep, which names itself in the environment: engines._context) ends
+    """The fork server (a child of the sweep, which names itself in the environment: workers.context) ends
     without the interpreter's teardown, which only kept the sweep's output pipes open ~0.3 s after the sweep ended;
     any other process that imports the preload module keeps its exit handlers."""
-    from flagbot_sim.sweep.engines import FORK_SERVER_PARENT_ENV
+    from flagbot_sim.workers import FORK_SERVER_PARENT_ENV
     code = ("import atexit\n"
             "atexit.register(print, 'exit handlers ran', flush=True)\n"
             "import flagbot_sim.sweep.preload\n")
@@ -375,3 +375,20 @@ def test_only_the_sweeps_own_fork_server_skips_the_interpreters_teardown(its_for
     p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert ("exit handlers ran" in p.stdout) is not its_fork_server
+
+
+@pytest.mark.parametrize("argv, local", [
+    (["design2", "--grid", "n=2,3"], True),
+    (["design2", "--engine", "local", "--grid", "n=2,3"], True),
+    (["design2", "--engine=local"], True),
+    (["design2", "--engine", "serial", "--grid", "n=2,3"], False),
+    (["design2", "--engine=dask", "--scheduler", "tcp://127.0.0.1:1"], False),
+    (["design2", "--grid", "n=2,3", "--help"], False),
+    (["-h"], False),
+    (["design2", "--", "--engine", "serial"], True),
+])
+def test_the_command_line_starts_the_fork_server_early_only_for_the_local_engine(argv, local):
+    """`flagbot sweep` starts its workers' fork server before its own imports when argparse will choose the local
+    engine (the default) and run the sweep; not for --help or another engine."""
+    from flagbot_sim.workers import wants_local_engine
+    assert wants_local_engine(argv) is local

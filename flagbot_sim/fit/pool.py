@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from typing import Callable
 
-from ..sweep.engines import ENGINES, _single_thread_env, _worker_init, default_workers
+from ..sweep.engines import ENGINES, _worker_init, default_workers
+from ..workers import single_thread_env
 from ..sweep.grid import SweepError
 
 
@@ -66,7 +67,7 @@ class Engine:
         from concurrent.futures import ProcessPoolExecutor
         from concurrent.futures.process import BrokenProcessPool
         if self._pool is None:
-            _single_thread_env()
+            single_thread_env()
             self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                              mp_context=multiprocessing.get_context("spawn"),
                                              initializer=_worker_init)
@@ -87,7 +88,7 @@ class Engine:
                 except (OSError, TimeoutError) as exc:
                     raise SweepError(f"--scheduler {self.scheduler}: cannot connect ({exc})") from None
             else:
-                _single_thread_env()
+                single_thread_env()
                 self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                              host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                              worker_dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)

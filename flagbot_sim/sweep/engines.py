@@ -9,13 +9,12 @@ import os
 import signal
 from typing import Iterator
 
+from .. import workers as worker_processes
 from .grid import SweepError
 from .task import run_point
 
 ENGINES = ("local", "dask", "serial")
 
-#: one thread per worker process: the workers already use every core, and threaded BLAS would oversubscribe
-_SINGLE_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 
 
 def default_workers() -> int:
@@ -36,12 +35,6 @@ def worker_count(engine: str, workers: int | None, n_tasks: int) -> int:
     return min(workers or default_workers(), max(1, n_tasks))
 
 
-def _single_thread_env() -> None:
-    # inherited by workers started after this (spawn: fresh interpreters that import numpy afresh)
-    for k in _SINGLE_THREAD_ENV:
-        os.environ.setdefault(k, "1")
-
-
 def _worker_init() -> None:
     # Ctrl-C (and a scheduler's SIGTERM) goes to the whole process group: only the parent handles it (cancels,
     # then kills the workers); a worker stopped mid-task would only turn into a broken pool
@@ -49,34 +42,12 @@ def _worker_init() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
-#: names the sweep process whose fork server is starting (:mod:`.preload` checks it is that process's child)
-FORK_SERVER_PARENT_ENV = "FLAGBOT_SWEEP_FORK_SERVER_PARENT"
-
-
-def _context():
-    """The workers' start: forked from a fork server that has loaded numpy, scipy, numba, the physics, the beam
-    solver and the kernels once (:mod:`.preload`), where the platform has one; else spawned (Windows). The fork
-    server is a fresh interpreter of its own, not this process: no inherited locks, threads or open files, like
-    spawn, without each worker's ~1.1 s of imports and kernel loading."""
-    import multiprocessing
-    if "forkserver" not in multiprocessing.get_all_start_methods():
-        return multiprocessing.get_context("spawn")
-    os.environ[FORK_SERVER_PARENT_ENV] = str(os.getpid())
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload([f"{__package__}.preload"])
-    return ctx
-
-
 def start(engine: str, n_tasks: int) -> None:
     """Start what ``engine`` needs before its tasks exist, so that it loads while this process prepares them: the
-    local engine's fork server (its imports and kernels, ~1.2 s on one core), which the pool's workers then fork
-    from. Nothing for the other engines or without tasks."""
-    if engine != "local" or n_tasks < 1:
-        return
-    ctx = _context()
-    if ctx.get_start_method() == "forkserver":
-        from multiprocessing import forkserver
-        forkserver.ensure_running()
+    local engine's fork server (its imports and kernels, ~1.3 s on one core; :func:`flagbot_sim.workers.start`),
+    which the pool's workers then fork from. Nothing for the other engines or without tasks."""
+    if engine == "local" and n_tasks >= 1:
+        worker_processes.start()
 
 
 def run_serial(tasks: list[dict]) -> Iterator[dict]:
@@ -89,8 +60,8 @@ def run_local(tasks: list[dict], workers: int) -> Iterator[dict]:
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    _single_thread_env()
-    ex = ProcessPoolExecutor(max_workers=workers, mp_context=_context(), initializer=_worker_init)
+    worker_processes.single_thread_env()
+    ex = ProcessPoolExecutor(max_workers=workers, mp_context=worker_processes.context(), initializer=_worker_init)
     futures = [ex.submit(run_point, t) for t in tasks]
     finished = False
     try:
@@ -129,7 +100,7 @@ def run_dask(tasks: list[dict], workers: int, scheduler: str | None) -> Iterator
         except (OSError, TimeoutError) as exc:
             raise SweepError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
     else:
-        _single_thread_env()
+        worker_processes.single_thread_env()
         # every listener on the loopback interface: the scheduler, the workers, their nannies and the
         # dashboard (which only starts if bokeh is installed)
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",

@@ -14,7 +14,7 @@ from .. import beam  # noqa: F401  (the beam regimes' solver: scipy's BVP and ro
 from ..beam import balance, nonlinear  # noqa: F401
 from ..physics import error_estimate, model, steady, warmup  # noqa: F401
 from . import task  # noqa: F401
-from .engines import FORK_SERVER_PARENT_ENV
+from ..workers import FORK_SERVER_PARENT_ENV
 
 try:
     warmup.ensure_compiled(groups=warmup.solve_groups())    # what every point's run_der_steady asks for
