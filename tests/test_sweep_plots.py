@@ -277,3 +277,31 @@ def test_the_speed_figure_is_saved_with_the_layout_its_letters_were_placed_in(tm
     saved = text_box(letter, renderer_of(fig))
     assert (saved.x0, saved.y0, saved.x1, saved.y1) == pytest.approx((measured.x0, measured.y0, measured.x1,
                                                                       measured.y1), abs=1e-9)
+
+
+def test_the_two_drawing_processes_get_halves_of_equal_cost():
+    """The figures are split between the two drawing processes by their drawing time, the speed figure counted
+    twice (FIGURE_COST), every figure in exactly one half, each half in the jobs' order: a one-length sweep's four
+    figures go speed + length | head spin + deflection (every other one gave the speed and deflection figures,
+    3 : 2, to one process), the 144-point sweep's ten split 7 : 6."""
+    from functools import partial
+
+    from flagbot_sim.sweep.plots import FIGURE_COST, _halves, figure_deflection, figure_head_spin, figure_length
+
+    def jobs_of(lengths):
+        jobs = []
+        for L in lengths:
+            jobs += [(f"speed{L}", partial(figure_speed, [])), (f"head{L}", partial(figure_head_spin, [])),
+                     (f"defl{L}", partial(figure_deflection, []))]
+        return jobs + [("length", partial(figure_length, []))]
+
+    def cost(half):
+        return sum(FIGURE_COST.get(j[1].func.__name__, 1.0) for j in half)
+
+    a, b = _halves(jobs_of(["89"]))
+    assert {tuple(j[0] for j in a), tuple(j[0] for j in b)} == {("speed89", "length"), ("head89", "defl89")}
+    jobs = jobs_of(["70", "89", "110"])
+    a, b = _halves(jobs)
+    assert sorted(j[0] for j in a + b) == sorted(j[0] for j in jobs)
+    assert sorted([cost(a), cost(b)]) == [6.0, 7.0]
+    assert [j[0] for j in a] == [j[0] for j in jobs if j in a]

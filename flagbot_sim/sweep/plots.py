@@ -457,6 +457,24 @@ def _draw(jobs: list, dpi: int) -> None:
         make().savefig(path, dpi=dpi, pil_kwargs={"compress_level": PNG_COMPRESSION})
 
 
+#: drawing time of a figure relative to the others: the speed figure is laid out once more, to place its letters
+#: (measured, design 2: 0.53 s against 0.25-0.37 s for the others)
+FIGURE_COST = {"figure_speed": 2.0}
+
+
+def _halves(jobs: list) -> tuple[list, list]:
+    """The jobs in two halves of about equal drawing time (FIGURE_COST): the costliest first, each to the half
+    with less so far; each half in the jobs' own order."""
+    def cost(job):
+        return FIGURE_COST.get(getattr(getattr(job[1], "func", None), "__name__", ""), 1.0)
+    totals, halves = [0.0, 0.0], ([], [])
+    for i in sorted(range(len(jobs)), key=lambda i: -cost(jobs[i])):
+        k = 0 if totals[0] <= totals[1] else 1
+        totals[k] += cost(jobs[i])
+        halves[k].append(i)
+    return tuple([jobs[i] for i in sorted(h)] for h in halves)
+
+
 def _draw_all(jobs: list, dpi: int, processes: int) -> None:
     """Draw and save every (path, make_figure) job: the first half here, the other half in a forked copy of
     this process at the same time (each figure is independent; the drawing, not the data, is most of a sweep's
@@ -464,7 +482,7 @@ def _draw_all(jobs: list, dpi: int, processes: int) -> None:
     if processes < 2 or len(jobs) < 2 or not hasattr(os, "fork"):
         _draw(jobs, dpi)
         return
-    mine, theirs = jobs[0::2], jobs[1::2]
+    mine, theirs = _halves(jobs)
     try:
         pid = os.fork()
     except OSError:
