@@ -189,7 +189,9 @@ def test_newton_assembles_straight_into_the_factorisation_order_and_evaluates_th
     ordered = S._pattern.values(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals, dv_dw, da_dw, dv_dU, ordered=True)
     assert np.array_equal(ordered, A.data[S._pattern.order_slots])
     b = np.random.default_rng(2).standard_normal(A.shape[0])
+    arrow, S._arrow = S._arrow, None                   # SuperLU's factorisation (numerics.linear_solver = 'splu')
     assert np.array_equal(S._factor(lin).solve(b), S._pattern.factor(A).solve(b))
+    S._arrow = arrow
     calls = []
     effect = model.effects[0]
     add_jacobian = effect.add_jacobian
@@ -200,3 +202,48 @@ def test_newton_assembles_straight_into_the_factorisation_order_and_evaluates_th
     monkeypatch.setattr(effect, "add_jacobian", counting)
     S._linear(q, model.elastic.frames0.copy(), sc.omega_T, w, U)
     assert calls == [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)]
+
+
+@pytest.mark.parametrize("name, overrides", [("design1", ["robot.n_flagella=3", "motor.omega_rpm=100"]),
+                                             ("design2", ["robot.n_flagella=2", "motor.omega_rpm=200"]),
+                                             ("clamped_flagellum", ["motor.omega_rpm=100"])])
+def test_newton_and_the_stability_factorise_with_the_arrow_solver(name, overrides, monkeypatch):
+    """The steady Jacobian (bordered by omega_t and U and the gauge rows, or the clamped flagellum's with identity
+    rows) is factorised by linsolve's arrow solver, compiled (~3x faster than SuperLU): its solutions are
+    SuperLU's to round-off (backward errors alike), its interpreted twin's (a cold cache) to the last bit, and the
+    equilibrium and the stability verdict are the same as with SuperLU."""
+    from flagbot_sim.physics import linsolve, tiers, warmup
+    warmup.ensure_compiled(groups=["arrow"])
+    sc, S, _ = _solvers(name, overrides)
+    assert isinstance(S._arrow, linsolve.ArrowSolver)
+    q, w, U = S.initial_guess(sc.omega_T)
+    lin = S._linear(q, S.model.elastic.frames0.copy(), sc.omega_T, w, U)
+    A = S._assemble(lin)
+    lu = S._factor(lin)
+    assert lu is S._arrow
+    b = np.random.default_rng(3).standard_normal(A.shape[0])
+    x = lu.solve(b)
+    y = S._pattern.factor(A).solve(b)
+    scale = abs(A).sum(axis=1).max() * np.abs(y).max()
+    assert np.abs(A @ x - b).max() < 10.0 * max(np.abs(A @ y - b).max(), 1e-15 * scale)
+    assert np.abs(x - y).max() < 1e-6 * np.abs(y).max()
+    monkeypatch.setattr(tiers, "DEFERRED", {"arrow"})          # the interpreted twins: the same factors
+    monkeypatch.setattr(warmup, "swap_in", lambda: False)
+    assert np.array_equal(S._factor(lin).solve(b), x)
+    monkeypatch.undo()
+    # the equilibrium and the stability: SuperLU's to round-off
+    sol = S.solve(sc.omega_T)
+    st = S.stability(sol, vectors=False)
+    ref = SteadySolver(RobotModel(load_scene(name, overrides + ["numerics.linear_solver='splu'"])))
+    assert ref._arrow is None
+    rsol = ref.solve(sc.omega_T)
+    rst = ref.stability(rsol, vectors=False)
+    assert np.abs(sol.q - rsol.q).max() <= 1e-9 * np.abs(rsol.q).max()
+    assert sol.omega_t == pytest.approx(rsol.omega_t, rel=1e-12, abs=1e-300)
+    assert sol.v == pytest.approx(rsol.v, rel=1e-9, abs=1e-15)
+    assert (st.stable, st.neutral) == (rst.stable, rst.neutral)
+    # the slowest rate to ARPACK's tolerance (1e-10) relative to its mode's |mu|: the clamped flagellum's slowest
+    # mode is a twist oscillation, mu = -0.32 + 283i, whose real part moves by 2e-7 relative between SuperLU's
+    # own column orders (COLAMD, MMD) and by 3e-8 here
+    slowest = next(m for m in rst.rates if m.real == rst.rate)
+    assert abs(st.rate - rst.rate) <= 1e-9 * abs(slowest)

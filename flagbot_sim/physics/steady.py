@@ -25,6 +25,7 @@ the straight robot makes it robust: when Newton fails, the step in omega_T is ha
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -35,6 +36,7 @@ import scipy.sparse.linalg as spla
 
 from .effects import StepContext
 from .frames import EdgeFrames
+from .linsolve import ArrowSolver, flagellum_chains
 from .medium import coefficients_report
 from .model import RobotModel, State
 from .observe import summary_fields
@@ -117,8 +119,10 @@ class _BorderedPattern:
     rigid-motion field's derivatives, whose structure is fixed), bordered by the columns Kv dv/domega_t +
     Ka da/domega_t and Kv dv/dU and the two gauge rows (free robot), with identity rows for prescribed DOFs. Every
     contribution's target slot is precomputed, so each assembly is products of arrays and one ``np.bincount``:
-    no sparse products, no format conversions. So is a fill-reducing column order for the factorisations
-    (:meth:`factor`)."""
+    no sparse products, no format conversions. Factorised by the arrow solver (:meth:`arrow`: the flagella banded,
+    the border columns and rows with the core), or by SuperLU in a fill-reducing column order found once, when
+    first asked for (:meth:`factor`: a scene that asks for ``numerics.linear_solver = 'splu'``, a network
+    without the arrow structure)."""
 
     def __init__(self, pattern, N: int, n_edges: int, head: np.ndarray, tail: np.ndarray, fixed: np.ndarray,
                  gauge: np.ndarray, bordered: bool):
@@ -168,38 +172,64 @@ class _BorderedPattern:
         self.target = target
         self.indices = (uniq % n).astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(uniq // n, minlength=n))]).astype(np.int32)
+        # the structure as linsolve.ArrowSolver reads it
+        self.ndof = n
+        self.row_of_slot = self.indices.astype(np.int64)
+        self.col_of_slot = uniq // n
         self.sizes = sizes
         self.scol = scol
         self.bordered = bordered
         self._ones = np.ones(sizes[-1] + (sizes[-2] if bordered else 0))
-        # SuperLU's minimum degree ordering of A + A^T depends on the structure alone: found once here, on values
-        # drawn from a fixed seed, and every factorisation (:meth:`factor`) takes the columns in that order
+        self._arrow = None                     # the arrow solver of this structure (:meth:`arrow`), once built
+
+    def arrow(self, net) -> ArrowSolver:
+        """An arrow solver of this structure (``net``: the network, whose flagella are its chains) with buffers
+        of its own; the slot mapping is built once per structure (~0.3-0.6 ms) and shared. Raises ValueError if
+        the structure is not an arrow."""
+        if self._arrow is None:
+            self._arrow = ArrowSolver(self, flagellum_chains(net))
+        return self._arrow.copy()
+
+    @functools.cached_property
+    def _ordering(self) -> tuple:
+        """SuperLU's minimum degree ordering of A + A^T depends on the structure alone: found once, when first
+        needed, on values drawn from a fixed seed, and every SuperLU factorisation (:meth:`factor`) takes the
+        columns in that order. (order, its CSC slots, indices, indptr, the assembly's targets in that order)."""
+        n = self.n
         probe = sp.csc_matrix((np.random.default_rng(0).standard_normal(self.nnz), self.indices.copy(),
                                self.indptr.copy()), shape=(n, n))
         perm_c = spla.splu(probe, permc_spec="MMD_AT_PLUS_A").perm_c
         order = np.empty(n, np.int64)
         order[perm_c] = np.arange(n)
-        #: the columns of the Jacobian in factorisation order, and the CSC slots of the matrix so permuted
-        self.order = order
         counts = np.diff(self.indptr.astype(np.int64))[order]
         starts = self.indptr[order].astype(np.int64)
-        self.order_slots = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
-        self.order_indices = self.indices[self.order_slots]
-        self.order_indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        slots = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
         in_order = np.full(self.nnz + 1, self.nnz)          # (the discarded bin stays where it is)
-        in_order[self.order_slots] = np.arange(self.nnz)
-        self._ordered_target = in_order[target]
+        in_order[slots] = np.arange(self.nnz)
+        return order, slots, self.indices[slots], indptr, in_order[self.target]
+
+    @property
+    def order(self) -> np.ndarray:
+        """The columns of the Jacobian in SuperLU's factorisation order."""
+        return self._ordering[0]
+
+    @property
+    def order_slots(self) -> np.ndarray:
+        """The CSC slots of the matrix with its columns in :attr:`order`."""
+        return self._ordering[1]
 
     def factor(self, A: sp.csc_matrix) -> "_OrderedLU":
-        """SuperLU's factors of ``A`` (on this pattern), its columns in the fill-reducing order found at
-        construction (no ordering per factorisation; one-column panels and no relaxed supernodes, which for
+        """SuperLU's factors of ``A`` (on this pattern), its columns in the fill-reducing order found once per
+        structure (no ordering per factorisation; one-column panels and no relaxed supernodes, which for
         matrices this small cost less than they save). Raises RuntimeError if ``A`` is singular."""
         return self.factor_values(A.data[self.order_slots])
 
     def factor_values(self, data: np.ndarray) -> "_OrderedLU":
         """:meth:`factor` of the matrix whose CSC data in the factorisation's column order is ``data`` (what
         :meth:`values` gives with ``ordered=True``)."""
-        P = sp.csc_matrix((data, self.order_indices, self.order_indptr), shape=(self.n, self.n))
+        _, _, indices, indptr, _ = self._ordering
+        P = sp.csc_matrix((data, indices, indptr), shape=(self.n, self.n))
         return _OrderedLU(spla.splu(P, permc_spec="NATURAL", panel_size=1, relax=1), self.order)
 
     @staticmethod
@@ -225,14 +255,13 @@ class _BorderedPattern:
                 w = w + Ka * da_dw[self.scol]
             parts += [w, Kv * dv_dU[self.scol]]
         parts.append(self._ones if identity else np.zeros(len(self._ones)))
-        target = self._ordered_target if ordered else self.target
+        target = self._ordering[4] if ordered else self.target
         return np.bincount(target, np.concatenate(parts), minlength=self.nnz + 1)[: self.nnz]
 
-    def embed(self, K: np.ndarray) -> sp.csc_matrix:
-        """A matrix on the model's pattern (CSC data ``K``) as one on this pattern, its prescribed rows dropped."""
-        m = self.sizes[0]
-        data = np.bincount(self.target[:m], K, minlength=self.nnz + 1)[: self.nnz]
-        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+    def embed(self, K: np.ndarray) -> np.ndarray:
+        """The CSC data on this pattern of a matrix on the model's pattern (CSC data ``K``), its prescribed rows
+        dropped."""
+        return np.bincount(self.target[: self.sizes[0]], K, minlength=self.nnz + 1)[: self.nnz]
 
 
 
@@ -258,7 +287,8 @@ _PATTERN_CACHE_SIZE = 16
 
 def bordered_pattern(pattern, N: int, n_edges: int, head, tail, fixed, gauge, bordered: bool) -> _BorderedPattern:
     """The :class:`_BorderedPattern` of this structure, built once per process: it depends on the structure alone
-    (the model's CSC pattern, the edges, the prescribed DOFs and the gauge), and is only read after it is built."""
+    (the model's CSC pattern, the edges, the prescribed DOFs and the gauge), and is only read after it is built
+    (but for what it builds once, when first asked: the SuperLU column order, the arrow solver's slot mapping)."""
     arrays = (pattern.indptr, pattern.indices, head, tail, fixed, gauge)
     key = (N, n_edges, pattern.ndof, bool(bordered)) + tuple(
         (np.asarray(a).dtype.str, np.asarray(a).shape, np.ascontiguousarray(a).tobytes()) for a in arrays)
@@ -429,6 +459,15 @@ class SteadySolver:
         self._is_fixed[self.fixed] = True
         self._pattern = bordered_pattern(model.pattern, N, net.n_edges, self._head, self._tail, self.fixed,
                                          self.gauge, bordered=len(self.gauge) > 0)
+        #: the arrow solver that factorises the Jacobian (linsolve.ArrowSolver, buffers of this solver's own), or
+        #: None: SuperLU (_BorderedPattern.factor), where the scene asks for it or the network is not an arrow
+        self._arrow = None
+        if model.scene.numerics.linear_solver != "splu":
+            try:
+                self._arrow = self._pattern.arrow(net)
+            except ValueError:
+                if model.scene.numerics.linear_solver == "arrow":
+                    raise
         self._ex = np.eye(3)[0]
         self._dv_dU = np.zeros(model.ndof)
         self._dv_dU[0: 3 * N: 3] = 1.0
@@ -510,11 +549,24 @@ class SteadySolver:
         return self._pattern.assemble(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals, dv_dw, da_dw, dv_dU)
 
     def _factor(self, lin: _Linear):
-        """The Jacobian's factors (:meth:`_BorderedPattern.factor_values`), assembled straight into the
-        factorisation's column order (no matrix in the unknowns' order is formed)."""
+        """The Jacobian's factors, something with ``solve(b)``: the arrow solver's (valid until this solver's next
+        factorisation), or SuperLU's (:meth:`_BorderedPattern.factor_values`, the Jacobian assembled straight into
+        its column order). Raises RuntimeError if the Jacobian is singular."""
         _, _, dv_dw, da_dw, dv_dU = lin.fields
+        if self._arrow is not None:
+            return self._factor_data(self._pattern.values(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals,
+                                                          dv_dw, da_dw, dv_dU))
         return self._pattern.factor_values(self._pattern.values(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals,
                                                                 dv_dw, da_dw, dv_dU, ordered=True))
+
+    def _factor_data(self, data: np.ndarray):
+        """The factors of the matrix whose CSC data on the bordered pattern is ``data``: the arrow solver's (its
+        compiled kernels: warmup.groups_for names them for a steady solve; its interpreted twins, the same numbers
+        to the last bit, only where a time-stepped run in this process deferred them), or SuperLU's."""
+        if self._arrow is None:
+            return self._pattern.factor_values(data[self._pattern.order_slots])
+        self._arrow.factor(data)
+        return self._arrow
 
     def system(self, q, committed: EdgeFrames, omega_T, omega_t, U):
         """Residual and Jacobian of the bordered system in the problem's unknowns: (q, omega_t, U) (free robot) or
@@ -715,20 +767,32 @@ class SteadySolver:
         A_r, and C the Coriolis term 2 Omega e_x x on the nodes and the twist rates' d(Omega_e e_x.t)/dx x' on
         the edges): A is the steady Jacobian, D = dR/dv + dR/da C on the DOFs (with the border columns' rates:
         a turning rate or speed that changes accelerates every node), and Mm = dR/da, the masses."""
+        A, D, Mm, omega_t = self._linearization_data(sol)
+        pat = self._pattern
+        return sp.csc_matrix((A, pat.indices, pat.indptr), shape=(pat.n, pat.n)), self._sparse(D), \
+            self._sparse(Mm), omega_t
+
+    def _sparse(self, data: np.ndarray) -> sp.csc_matrix:
+        """The matrix of CSC data ``data`` on the bordered pattern without the pattern's unused slots (no inertia
+        effect: Mm = 0). ``data`` is compacted in place (eliminate_zeros): not to be read afterwards."""
+        pat = self._pattern
+        M = sp.csc_matrix((data, pat.indices.copy(), pat.indptr.copy()), shape=(pat.n, pat.n))
+        M.eliminate_zeros()            # (on copies of the pattern's index arrays)
+        return M
+
+    def _linearization_data(self, sol: SteadySolution):
+        """:meth:`linearization`'s A, D and Mm as CSC data on the bordered pattern (none dropped), and omega_t."""
         omega_t = sol.omega_t
         lin = self._linear(sol.q, sol.frames, sol.omega_T, omega_t, -sol.v)
-        A = self._assemble(lin)
-        _, _, dv_dw, _, dv_dU = lin.fields
+        _, _, dv_dw, da_dw, dv_dU = lin.fields
+        pat = self._pattern
+        A = pat.values(lin.J00, lin.Kv, lin.Ka, lin.dv_vals, lin.da_vals, dv_dw, da_dw, dv_dU)
         coriolis = lin.dv_vals.copy()
         coriolis[: 2 * self.N] *= 2.0                 # the node entries: 2 Omega e_x x; the edges' as they are
         # D = Kv + Ka C, bordered by Ka dv/domega_t and Ka dv/dU: the steady Jacobian's assembly with (Kv, Ka, C)
-        # in place of (J00, Kv, Dv), without its inertia terms and ones; Mm = Ka on the same pattern. The pattern's
-        # unused slots (no inertia effect: Mm = 0) are dropped
-        D = self._pattern.assemble(lin.Kv, lin.Ka, None, coriolis, None, dv_dw, None, dv_dU, identity=False)
-        Mm = self._pattern.embed(lin.Ka)
-        D, Mm = (sp.csc_matrix((M.data, M.indices.copy(), M.indptr.copy()), shape=M.shape) for M in (D, Mm))
-        D.eliminate_zeros()            # (in place: on copies of the pattern's index arrays)
-        Mm.eliminate_zeros()
+        # in place of (J00, Kv, Dv), without its inertia terms and ones; Mm = Ka on the same pattern
+        D = pat.values(lin.Kv, lin.Ka, None, coriolis, None, dv_dw, None, dv_dU, identity=False)
+        Mm = pat.embed(lin.Ka)
         return A, D, Mm, omega_t
 
     def stability(self, sol: SteadySolution, k: int = 12, vectors: bool = True) -> Stability:
@@ -738,27 +802,25 @@ class SteadySolver:
         the medium's damping with the Coriolis terms, the masses; the gauge fixes translation along and rotation
         about the axis, and omega_t and U follow the force and torque balance) have solutions z e^(mu t). As a
         first-order pencil in y = (z, mu z), the modes nearest mu = 0 are the largest eigenvalues nu = 1/mu of
-        y -> (A^-1 (-D z - Mm w), z), found by ARPACK with A factorised once, as many as it takes to reach the
-        neutral modes' |mu| = omega_t (so every mode slower than the turning itself is examined; the tests
-        compare with the whole spectrum of dense solves). Stable when every mu found has a negative real part,
-        apart from the neutral modes of the symmetry: a sideways shift and a tilt of the whole robot (it swims
-        the same along any axis, from any point) appear in the turning frame as oscillations at exactly
-        +-i omega_t. Inertia is included: the centripetal load reaches the drag at ~1800 rpm for design 2's
-        flagellum, where the overdamped picture calls a folding equilibrium stable.
+        y -> (A^-1 (-D z - Mm w), z), found by ARPACK with A factorised once (by the arrow solver, as Newton's
+        Jacobian), as many as it takes to reach the neutral modes' |mu| = omega_t (so every mode slower than the
+        turning itself is examined; the tests compare with the whole spectrum of dense solves). Stable when every
+        mu found has a negative real part, apart from the neutral modes of the symmetry: a sideways shift and a
+        tilt of the whole robot (it swims the same along any axis, from any point) appear in the turning frame as
+        oscillations at exactly +-i omega_t. Inertia is included: the centripetal load reaches the drag at
+        ~1800 rpm for design 2's flagellum, where the overdamped picture calls a folding equilibrium stable.
 
         ``vectors=False``: the eigenvalues alone (ARPACK's Ritz vectors are not formed), so the verdict, ``rate``
         and ``rates`` are the same but the modes are not classified: ``twist_shares`` is empty and
         ``shape_rate``, ``twist_rate`` and ``twist_frequency`` are NaN (what a sweep, which records only
         ``stable``, does not need)."""
         problem = self.problem
-        A, D, Mm, omega_t = self.linearization(sol)
-        n = A.shape[0]
+        a, d, m, omega_t = self._linearization_data(sol)
+        n = self._pattern.n
         # shift-invert about sigma (mu = sigma + 1/theta)
         sigma = problem.shift(omega_t)
-        if sigma == 0.0:
-            lu = self._pattern.factor(A)
-        else:
-            lu = spla.splu((A + sigma * D + sigma ** 2 * Mm).tocsc(), permc_spec="COLAMD")
+        lu = self._factor_data(a if sigma == 0.0 else a + sigma * d + sigma ** 2 * m)
+        D, Mm = self._sparse(d), self._sparse(m)
         if Mm.nnz:
             # D z + Mm (w + sigma z) as one product with [D + sigma Mm, Mm]
             B = sp.hstack([D + sigma * Mm, Mm], format="csr")

@@ -264,12 +264,13 @@ MODEL_GROUPS = ("frames", "stretch", "bend_twist", "bend_twist_global")
 
 def solve_groups() -> list[str]:
     """Every group a steady solve of any scene may use (:func:`groups_for` with ``time_stepping=False``, over
-    every effect): the frames, the springs and each effect's kernels, none of the time-stepping ones. What the
-    sweeps' fork server loads once for all its workers, whatever scene their points have."""
+    every effect): the frames, the springs, each effect's kernels and the arrow solver, none of the time-stepping
+    ones. What the sweeps' fork server loads once for all its workers, whatever scene their points have."""
     from .effects import EFFECT_TYPES
     names = list(MODEL_GROUPS)
     for effect in EFFECT_TYPES.values():
         names.extend(effect.kernel_groups)
+    names.append("arrow")
     return list(dict.fromkeys(names))
 #: the helper process's start in the units of ``Group.weight``, forked or as a fresh interpreter (which imports
 #: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s; with 0.15 a cold
@@ -280,18 +281,22 @@ HELPER_START = {"fork": 0.15, "spawn": 1.1}
 
 
 def groups_for(scene, time_stepping: bool = True) -> list[str]:
-    """The kernel groups a model of ``scene`` uses: its frames and springs, its effects' kernels, and for a
-    time-stepped simulation (``time_stepping``) the predictor, the observer and, unless the scene asks for
-    scipy's sparse LU, the arrow solver and the compiled Newton solve of a step (newton.py). A steady solve
-    (``time_stepping=False``) uses none of those."""
+    """The kernel groups a model of ``scene`` uses: its frames and springs, its effects' kernels, unless the scene
+    asks for scipy's sparse LU the arrow solver, and for a time-stepped simulation (``time_stepping``) the
+    predictor, the observer and (unless sparse LU) the compiled Newton solve of a step (newton.py). A steady solve
+    (``time_stepping=False``) factorises its Jacobian with the arrow solver too (steady.py); on a cold cache
+    ensure_compiled compiles it in the foreground for a steady solve (measured +0.2-0.7 s on a 2-core machine;
+    its twin would run the whole solve) and in the background for a time-stepped run."""
     from .effects import EFFECT_TYPES
     names = list(MODEL_GROUPS)
     for effect in scene.effects:
         names.extend(EFFECT_TYPES[effect].kernel_groups)
     if time_stepping:
         names.append("time_stepping")
-        if scene.numerics.linear_solver != "splu":
-            names.extend(("arrow", "newton"))
+    if scene.numerics.linear_solver != "splu":
+        names.append("arrow")
+        if time_stepping:
+            names.append("newton")
     return list(dict.fromkeys(names))
 
 
@@ -339,13 +344,19 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
     are being compiled, then one per finished group with the seconds so far and an estimate of the time left.
 
     Background groups (``Group.background``: the time-stepping kernels that have a twin, the same numbers
-    slower) among the ``groups`` a caller names are loaded if their cache is warm. If any is cold, this process
-    goes on without them (:func:`deferred` is true for each: their callers use the interpreted twins) and a
-    background process compiles the cold ones into the cache (after this process's own compile); the
-    simulation swaps the compiled kernels in as soon as they are there (:func:`swap_in`), and the next run loads
-    them. With ``groups=None`` (``flagbot compile``, dev.py) every group is compiled here."""
+    slower) among the ``groups`` a caller names are loaded if their cache is warm. If any is cold and the caller
+    is a time-stepped run (its groups include "time_stepping"), this process goes on without them
+    (:func:`deferred` is true for each: their callers use the interpreted twins) and a background process
+    compiles the cold ones into the cache (after this process's own compile); the simulation swaps the compiled
+    kernels in as soon as they are there (:func:`swap_in`), and the next run loads them. A steady solve (no
+    "time_stepping": it has no step at which to swap them in, and its arrow solver's twin would run the whole
+    solve) compiles them here with the others. With ``groups=None`` (``flagbot compile``, dev.py) every group is
+    compiled here. A group a time-stepped run deferred already (an earlier call in this process) stays deferred
+    with the background groups asked with it until swap_in loads them all (its background compile is under way),
+    unless a steady solve asks for it: then it is loaded (or compiled) here."""
     from numba.core import config
-    wanted = [g for g in (GROUPS if groups is None else dict.fromkeys(groups)) if g not in _LOADED]
+    wanted_all = list(GROUPS if groups is None else dict.fromkeys(groups))
+    wanted = [g for g in wanted_all if g not in _LOADED]
     if not wanted:
         return 0.0
     t0 = time.perf_counter()
@@ -353,7 +364,8 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
         _LOADED.update(wanted)
         return time.perf_counter() - t0
     cold = [g for g in wanted if not cache_is_warm([g])]
-    later = [g for g in cold if groups is not None and GROUPS[g].background]
+    stepping = groups is not None and "time_stepping" in wanted_all
+    later = [g for g in wanted if stepping and GROUPS[g].background and (g in cold or g in DEFERRED)]
     if later:                                     # the compiled step calls the others: all of them, or none
         later = [g for g in wanted if GROUPS[g].background]
     cold = [g for g in cold if g not in later]
@@ -363,6 +375,8 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
         if g not in _LOADED and g not in later:
             GROUPS[g].warm()
             _LOADED.add(g)
+            DEFERRED.discard(g)
+    later = [g for g in later if g not in DEFERRED]
     if later:
         DEFERRED.update(later)
         compile_later = [g for g in later if not cache_is_warm([g])] or later     # (warm since: swap_in loads)
