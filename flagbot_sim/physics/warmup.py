@@ -261,17 +261,6 @@ GROUPS: dict[str, Group] = {g.name: g for g in (
 #: what every model needs: its frames and its springs
 MODEL_GROUPS = ("frames", "stretch", "bend_twist", "bend_twist_global")
 
-
-def solve_groups() -> list[str]:
-    """Every group a steady solve of any scene may use (:func:`groups_for` with ``time_stepping=False``, over
-    every effect): the frames, the springs, each effect's kernels and the arrow solver, none of the time-stepping
-    ones. What the sweeps' fork server loads once for all its workers, whatever scene their points have."""
-    from .effects import EFFECT_TYPES
-    names = list(MODEL_GROUPS)
-    for effect in EFFECT_TYPES.values():
-        names.extend(effect.kernel_groups)
-    names.append("arrow")
-    return list(dict.fromkeys(names))
 #: the helper process's start in the units of ``Group.weight``, forked or as a fresh interpreter (which imports
 #: numpy, scipy and numba and sets numba's compiler up again, ~1 s). The fork itself is ~0.05 s; with 0.15 a cold
 #: design 1 splits as measured best (2026-12-07, the bend-twist springs in two groups: the helper's four groups
@@ -287,13 +276,26 @@ def groups_for(scene, time_stepping: bool = True) -> list[str]:
     (``time_stepping=False``) factorises its Jacobian with the arrow solver too (steady.py); on a cold cache
     ensure_compiled compiles it in the foreground for a steady solve (measured +0.2-0.7 s on a 2-core machine;
     its twin would run the whole solve) and in the background for a time-stepped run."""
+    return _groups(scene.effects, time_stepping, arrow=scene.numerics.linear_solver != "splu")
+
+
+def solve_groups() -> list[str]:
+    """Every group a steady solve of any scene may use (:func:`groups_for` with ``time_stepping=False``, over
+    every effect): the frames, the springs, each effect's kernels and the arrow solver, none of the time-stepping
+    ones. What the sweeps' fork server loads once for all its workers, whatever scene their points have."""
+    from .effects import EFFECT_TYPES
+    return _groups(EFFECT_TYPES, time_stepping=False, arrow=True)
+
+
+def _groups(effects, time_stepping: bool, arrow: bool) -> list[str]:
+    """The groups of a model with ``effects`` (names): :func:`groups_for`'s list."""
     from .effects import EFFECT_TYPES
     names = list(MODEL_GROUPS)
-    for effect in scene.effects:
+    for effect in effects:
         names.extend(EFFECT_TYPES[effect].kernel_groups)
     if time_stepping:
         names.append("time_stepping")
-    if scene.numerics.linear_solver != "splu":
+    if arrow:
         names.append("arrow")
         if time_stepping:
             names.append("newton")

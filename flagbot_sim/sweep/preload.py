@@ -10,8 +10,7 @@ from __future__ import annotations
 import atexit
 import os
 
-from .. import beam  # noqa: F401  (the beam regimes' solver: scipy's BVP and root finding)
-from ..beam import balance, nonlinear  # noqa: F401
+from ..beam import balance, nonlinear  # noqa: F401  (the beam regimes' solver: scipy's BVP and root finding)
 from ..physics import error_estimate, model, steady, warmup  # noqa: F401
 from . import task  # noqa: F401
 from ..workers import FORK_SERVER_PARENT_ENV
