@@ -1,7 +1,8 @@
 """Beam-theory estimator of the paper's section "Beam theory based analysis of propulsion".
 
-LB (closed form), NLB w/o head and NLB (solve_bvp) flagellum solutions and the robot's force/torque balance
-for omega_h, omega_t and v_h at a motor speed omega_T. numpy/scipy only; SI units. See docs/beam.md.
+LB (closed form), NLB w/o head and NLB (Chebyshev collocation for the balance, solve_bvp otherwise) flagellum
+solutions and the robot's force/torque balance for omega_h, omega_t and v_h at a motor speed omega_T. numpy/scipy
+only; SI units. See docs/beam.md.
 
     from flagbot_sim.beam import BeamParams, solve_balance
     res = solve_balance(BeamParams.from_scene(scene), scene.omega_T, regime="nlb")

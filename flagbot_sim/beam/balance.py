@@ -31,8 +31,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Iterable
 
-from scipy.optimize import brentq
-
 from .linear import FlagellumSolution, lb_F_p, solve_lb
 from .nonlinear import DEFAULT_TOL, BeamSolveError, NLBSolveError, solve_nlb, solve_nlb_balanced, solve_nlb_coupled
 from .params import BeamParams
@@ -181,12 +179,11 @@ def solve_balance(params: BeamParams, omega_T: float, regime: str = "nlb", *,
     # from the neighbour's solution or the LB profile: taken if it converges to a root inside the bracket and the
     # balance's checks hold (_result); else, or where it fails, the root search below, as before.
     start = first_guess.omega_t * W / abs(guess.omega_T) if first_guess is not None and guess.omega_T else omega_t_lb
-    one = solve_nlb_balanced(params, W, regime == "nlb", start, guess=first_guess.bvp if first_guess else None,
-                             tol=tol)
+    one = solve_nlb_balanced(params, W, regime == "nlb", start, guess=first_guess.bvp if first_guess else None)
     if one is not None and lo * (1.0 - 1e-9) <= one.omega_t <= hi * (1.0 + 1e-9):
         res = _result(params, regime, W, one.omega_t, one, sign, 1,
-                      f"the torque balance as a boundary condition of one BVP (omega_t unknown), its root inside "
-                      f"the bracket [{lo:.6g}, {hi:.6g}] rad/s")
+                      f"the torque balance as a boundary condition of one BVP (omega_t unknown; {one.message}), its "
+                      f"root inside the bracket [{lo:.6g}, {hi:.6g}] rad/s")
         if res.converged:
             return res
 
@@ -224,6 +221,7 @@ def solve_balance(params: BeamParams, omega_T: float, regime: str = "nlb", *,
             if g_hi == 0.0:
                 root, iterations = hi, 0
             else:
+                from scipy.optimize import brentq      # here: the one-BVP balance above rarely falls through to it
                 root, info = brentq(g, lo, hi, xtol=rtol * W * 1e-3, rtol=rtol, full_output=True, disp=False)
                 if not info.converged:
                     raise BalanceError(f"Brent's method did not converge for omega_T = {W:.6g} rad/s "

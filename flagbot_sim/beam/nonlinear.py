@@ -1,4 +1,5 @@
-"""Nonlinear beam (NLB, NLB w/o head): EI w'''' = p(w') with the full RFT load, solved with solve_bvp.
+"""Nonlinear beam (NLB, NLB w/o head): EI w'''' = p(w') with the full RFT load, solved with solve_bvp (at a
+given omega_t) or by Chebyshev collocation (spectral.py: omega_t from the robot's torque balance).
 
 Paper Eq. force_withHead_withoutApprox, with V = omega_t R_d:
 
@@ -27,10 +28,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_bvp
 
+from . import spectral
 from .linear import FlagellumSolution
 from .params import BeamParams
+from .spectral import load
 
 #: solve_bvp's relative collocation-residual tolerance. Measured against a 2001-node, tol 1e-10 reference,
 #: it gives w(L), F_x and F_p to ~1e-9 relative for load numbers A = 0.1 .. 3000 (docs/beam.md).
@@ -66,20 +68,6 @@ class BVPState:
     B: float
 
 
-def _load(s, A, B, kappa):
-    """P, Q and their derivatives with respect to s = u', to B and to A."""
-    D = 1.0 + s * s
-    P = A + (kappa - 1.0) * (A * s * s + B * s) / D
-    Q = (1.0 - kappa) * (A * s + B) / D - B
-    dP_ds = (kappa - 1.0) * (2.0 * A * s + B * (1.0 - s * s)) / D ** 2
-    dQ_ds = (1.0 - kappa) * (A * (1.0 - s * s) - 2.0 * B * s) / D ** 2
-    dP_dB = (kappa - 1.0) * s / D
-    dQ_dB = (1.0 - kappa) / D - 1.0
-    dP_dA = 1.0 + (kappa - 1.0) * s * s / D
-    dQ_dA = (1.0 - kappa) * s / D
-    return P, Q, dP_ds, dQ_ds, dP_dB, dQ_dB, dP_dA, dQ_dA
-
-
 def _linear_guess(x, A, B, kappa):
     """LB profile at (A, B), the start of every continuation; I_p from the LB q = (1-kappa) A u' - kappa B."""
     u = A * x ** 2 * (6 - 4 * x + x ** 2) / 24
@@ -111,12 +99,12 @@ def _attempt(A, B, kappa, x0, y0, coupled_D=None, n=None, B0=None, tol=DEFAULT_T
 
     def fun(x, y, p=None):
         a_num, b = numbers(p)
-        P, Q, *_ = _load(y[1], a_num, b, kappa)
+        P, Q, *_ = load(y[1], a_num, b, kappa)
         return np.vstack([y[1], y[2], y[3], P, P, Q])
 
     def fun_jac(x, y, p=None):
         a_num, b = numbers(p)
-        _, _, dP_ds, dQ_ds, dP_dB, dQ_dB, dP_dA, dQ_dA = _load(y[1], a_num, b, kappa)
+        _, _, dP_ds, dQ_ds, dP_dB, dQ_dB, dP_dA, dQ_dA = load(y[1], a_num, b, kappa)
         J = np.zeros((6, 6, x.size))
         J[0, 1] = J[1, 2] = J[2, 3] = 1.0
         J[3, 1] = J[4, 1] = dP_ds
@@ -158,6 +146,7 @@ def _attempt(A, B, kappa, x0, y0, coupled_D=None, n=None, B0=None, tol=DEFAULT_T
             Jp[m - 1, n_p - 1] = 1.0 / (a * W)
         return Ja, Jb, Jp
 
+    from scipy.integrate import solve_bvp     # here: the one-BVP balance (spectral.py) does not need it
     kwargs = dict(fun_jac=fun_jac, bc_jac=bc_jac, tol=tol, max_nodes=max_nodes)
     if free_A:
         # the balance's own conditions to BALANCE_RTOL (Newton meets them to round-off once it converges)
@@ -274,39 +263,43 @@ def solve_nlb_coupled(params: BeamParams, omega_t: float, *, guess: FlagellumSol
 
 
 def solve_nlb_balanced(params: BeamParams, omega_T: float, coupled: bool, omega_t0: float, *,
-                       guess: BVPState | None = None, tol: float = DEFAULT_TOL,
-                       max_nodes: int = MAX_NODES) -> FlagellumSolution | None:
+                       guess: BVPState | None = None) -> FlagellumSolution | None:
     """The flagellum at the omega_t that balances the torques of the robot at motor speed omega_T > 0 (rad/s):
-    omega_t an unknown of the BVP (through A), fixed by omega_t + n R_d F_x / c_torque = omega_T as a boundary
-    condition, v_h too if ``coupled`` (NLB; else NLB w/o head). One solve_bvp from ``guess`` (a converged
-    neighbour, scaled to omega_t0) or from the LB profile at omega_t0, without continuation: None if it does not
-    converge (balance.solve_balance then searches the root as before). The solution's omega_t is the balance."""
+    omega_t an unknown (through A), fixed by omega_t + n R_d F_x / c_torque = omega_T, v_h too if ``coupled``
+    (NLB; else NLB w/o head), by Chebyshev collocation of the BVP's integral equation (spectral.py) from
+    ``guess`` (a converged neighbour, scaled to omega_t0) or from the LB slope at omega_t0. None if Newton does not
+    converge or the resolution would pass spectral.MAX_N (balance.solve_balance then searches the root with
+    solve_bvp). The solution's omega_t is the balance; its error is the interpolant's (trailing Chebyshev
+    coefficients below spectral.TAIL), below solve_bvp's at any tolerance it is given."""
     A0 = params.load_number(omega_t0)
     kappa = params.kappa
     D, n = params.head_drag_number, params.n
     if guess is not None and guess.A > 0:
-        x0, y0, B0 = _scaled_guess(guess, A0)
+        r = A0 / guess.A
+        gx, gs = np.asarray(guess.x), np.asarray(guess.y[1]) * r
+
+        def s0(xi):
+            return np.interp(xi, gx, gs)
+        B0 = guess.B * r * r
     else:
-        x0 = np.linspace(0.0, 1.0, INITIAL_NODES)
+        def s0(xi):
+            return A0 * xi * (3 - 3 * xi + xi ** 2) / 6              # the LB slope
         B0 = n * (1 - kappa) * A0 * A0 / 8 / (D + n * kappa) if coupled else 0.0
-        y0 = _linear_guess(x0, A0, B0, kappa)
     a = params.load_number(1.0)                                       # A per rad/s of omega_t
     c = params.n * params.R_d * params.EI / (params.L ** 2 * params.c_torque)   # rad/s per unit of I_x(1)
-    res = _attempt(A0, 0.0, kappa, x0, y0, coupled_D=D if coupled else None, n=n, B0=B0, tol=tol,
-                   max_nodes=max_nodes, balance=(a, c, float(omega_T)))
-    if not _accepted(res):
+    problem = spectral.Problem(kappa, coupled_D=D if coupled else None, n=n, balance=(a, c, float(omega_T)))
+    sol = spectral.solve(problem, s0, A0, B0)
+    if sol is None:
         return None
-    # once more from the converged solution: solve_bvp stops its Newton iteration on the collocation residual,
-    # which can leave the unknown omega_t (and with it F_p, ~ omega_t^2) ~1e-6 relative short; the repeat makes
-    # F_x and F_p as accurate as a direct solve's at that omega_t (~1e-9, tests/test_beam_balance.py)
-    res = _attempt(float(res.p[-1]), 0.0, kappa, res.x, res.y, coupled_D=D if coupled else None, n=n,
-                   B0=float(res.p[0]) if coupled else None, tol=tol, max_nodes=max_nodes,
-                   balance=(a, c, float(omega_T)))
-    if not _accepted(res):
-        return None
-    A = float(res.p[-1])
-    B = float(res.p[0]) if coupled else 0.0
-    return _to_solution(params, params.omega_from_load_number(A), res, B, None)
+    force = params.EI / params.L ** 2
+    B = sol.B if coupled else 0.0
+    return FlagellumSolution(
+        regime="nlb", omega_t=params.omega_from_load_number(sol.A), v_h=params.speed_from_number(B),
+        F_x=float(sol.y[4, -1] * force), F_p=float(sol.y[5, -1] * force), w_tip=float(sol.y[0, -1] * params.L),
+        L=params.L, converged=True, nodes=sol.basis.N + 1, profile=sol.profile,
+        bvp=BVPState(sol.x, sol.y, sol.A, B),
+        message=f"Chebyshev collocation on {sol.basis.N + 1} points, {sol.iterations} Newton iterations, trailing "
+                f"coefficients {sol.tail:.1e} of the largest")
 
 
 __all__ = ["BeamSolveError", "NLBSolveError", "solve_nlb", "solve_nlb_coupled", "solve_nlb_balanced", "DEFAULT_TOL",
