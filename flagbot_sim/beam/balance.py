@@ -149,7 +149,8 @@ def solve_balance(params: BeamParams, omega_T: float, regime: str = "nlb", *,
                   rtol: float = BALANCE_RTOL, tol: float = DEFAULT_TOL) -> BalanceResult:
     """Steady omega_h, omega_t, v_h of the robot at motor speed omega_T (rad/s) in ``regime``.
 
-    ``guess``: a result at a nearby omega_T (same params) to warm-start the NLB solves. On failure raises
+    ``guess``: a result at a nearby omega_T (same params) to warm-start the NLB solves. ``tol``: solve_bvp's,
+    for the root search; the one-BVP balance (Chebyshev collocation) is solved to round-off. On failure raises
     :class:`BeamSolveError` (:class:`NLBSolveError` names the omega_t at which solve_bvp failed and why), or
     with ``raise_on_failure=False`` returns a result with ``converged=False``, the reason and NaN values.
     """

@@ -270,7 +270,8 @@ def solve_nlb_balanced(params: BeamParams, omega_T: float, coupled: bool, omega_
     ``guess`` (a converged neighbour, scaled to omega_t0) or from the LB slope at omega_t0. None if Newton does not
     converge or the resolution would pass spectral.MAX_N (balance.solve_balance then searches the root with
     solve_bvp). The solution's omega_t is the balance; its error is the interpolant's (trailing Chebyshev
-    coefficients below spectral.TAIL), below solve_bvp's at any tolerance it is given."""
+    coefficients of the slope, the load and the propulsion below spectral.TAIL): within 3e-14 of solve_bvp at
+    tol 1e-10 (docs/beam.md), where ``tol`` of the root search's solve_bvp does not apply."""
     A0 = params.load_number(omega_t0)
     kappa = params.kappa
     D, n = params.head_drag_number, params.n
