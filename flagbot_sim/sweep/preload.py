@@ -10,7 +10,7 @@ from __future__ import annotations
 import atexit
 import os
 
-from ..beam import balance, nonlinear  # noqa: F401  (the beam regimes' solver: scipy's BVP and root finding)
+from ..beam import balance, nonlinear  # noqa: F401  (the beam regimes' solver: numpy; scipy's BVP only on fallback)
 from ..physics import error_estimate, model, steady, warmup  # noqa: F401
 from . import task  # noqa: F401
 from ..workers import FORK_SERVER_PARENT_ENV
