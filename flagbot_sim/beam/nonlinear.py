@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import spectral
-from .linear import FlagellumSolution
+from .linear import FlagellumSolution, lb_profile
 from .params import BeamParams
 from .spectral import load
 
@@ -70,9 +70,14 @@ class BVPState:
 
 def _linear_guess(x, A, B, kappa):
     """LB profile at (A, B), the start of every continuation; I_p from the LB q = (1-kappa) A u' - kappa B."""
-    u = A * x ** 2 * (6 - 4 * x + x ** 2) / 24
-    return np.vstack([u, A * x * (3 - 3 * x + x ** 2) / 6, A * (1 - x) ** 2 / 2, -A * (1 - x), A * x,
-                      (1 - kappa) * A * u - kappa * B * x])
+    u, s, u2, u3 = lb_profile(A)(x)
+    return np.vstack([u, s, u2, u3, A * x, (1 - kappa) * A * u - kappa * B * x])
+
+
+def _lb_head_number(A, kappa, D, n):
+    """The LB estimate of the head speed number B at load number A (D = c_drag/(eta_p L)):
+    D B = n ((1-kappa) A^2/8 - kappa B)."""
+    return n * (1 - kappa) * A * A / 8 / (D + n * kappa)
 
 
 def _scaled_guess(state: BVPState, A: float):
@@ -172,8 +177,8 @@ def _solve_normalised(A, B, kappa, *, coupled_D=None, n=None, guess: BVPState | 
     def start(A_t, B_t, from_state):
         if from_state is None or from_state.A == 0:
             x = np.linspace(0.0, 1.0, INITIAL_NODES)
-            if coupled:   # LB estimate of the head speed: D B = n ((1-kappa) A^2/8 - kappa B)
-                B_t = n * (1 - kappa) * A_t * A_t / 8 / (coupled_D + n * kappa)
+            if coupled:
+                B_t = _lb_head_number(A_t, kappa, coupled_D, n)
             return x, _linear_guess(x, A_t, B_t, kappa), B_t
         return _scaled_guess(from_state, A_t)
 
@@ -276,16 +281,14 @@ def solve_nlb_balanced(params: BeamParams, omega_T: float, coupled: bool, omega_
     kappa = params.kappa
     D, n = params.head_drag_number, params.n
     if guess is not None and guess.A > 0:
-        r = A0 / guess.A
-        gx, gs = np.asarray(guess.x), np.asarray(guess.y[1]) * r
+        gx, gy, B0 = _scaled_guess(guess, A0)
 
         def s0(xi):
-            return np.interp(xi, gx, gs)
-        B0 = guess.B * r * r
+            return np.interp(xi, gx, gy[1])
     else:
         def s0(xi):
-            return A0 * xi * (3 - 3 * xi + xi ** 2) / 6              # the LB slope
-        B0 = n * (1 - kappa) * A0 * A0 / 8 / (D + n * kappa) if coupled else 0.0
+            return lb_profile(A0)(xi)[1]                               # the LB slope
+        B0 = _lb_head_number(A0, kappa, D, n) if coupled else 0.0
     a = params.load_number(1.0)                                       # A per rad/s of omega_t
     c = params.n * params.R_d * params.EI / (params.L ** 2 * params.c_torque)   # rad/s per unit of I_x(1)
     problem = spectral.Problem(kappa, coupled_D=D if coupled else None, n=n, balance=(a, c, float(omega_T)))
