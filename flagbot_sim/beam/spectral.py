@@ -71,8 +71,9 @@ def basis(N: int) -> Basis:
 
 
 def load(s, A, B, kappa):
-    """P, Q and their derivatives with respect to s = u', B and A (nonlinear.py's load, Eq.
-    force_withHead_withoutApprox and Eq. FpPerLength_full normalised)."""
+    """The normalised NLB load P and propulsion Q (Eq. force_withHead_withoutApprox and Eq. FpPerLength_full, as
+    nonlinear.py's docstring writes them) and their derivatives with respect to s = u', B and A: the one
+    implementation, which solve_bvp's path (nonlinear.py) uses too."""
     D = 1.0 + s * s
     P = A + (kappa - 1.0) * (A * s * s + B * s) / D
     Qf = (1.0 - kappa) * (A * s + B) / D - B
