@@ -1,0 +1,49 @@
+"""``flagbot bench steady`` compares the steady solver with time stepping to the same accuracy, as cheaply as time
+stepping gets there: the step search must find the coarsest accurate step, not stop at the first it is given (the
+old default tried only 2e-3 and 1e-3 s and credited the steady solver with up to 5x too much)."""
+import math
+
+import pytest
+
+from flagbot_sim.bench.steady import MAX_DOUBLINGS, MAX_HALVINGS, largest_step, within
+
+
+def second_order(c: float, cap: float = math.inf):
+    """A fake time-stepped run whose error is c dt^2 (BDF2's order), and that never settles above ``cap``."""
+    calls = []
+
+    def trial(dt):
+        calls.append(dt)
+        return {"dt": dt, "error": c * dt * dt, "steady": dt <= cap, "wall": 1.0 / dt}
+    return trial, calls
+
+
+@pytest.mark.parametrize("c", [1e-2, 1.0, 1e2, 1e4, 1e6])
+def test_the_search_ends_at_the_coarsest_accurate_step_within_a_factor_two(c):
+    accuracy, dt0 = 1e-4, 1e-2
+    trial, calls = second_order(c)
+    tried = largest_step(trial, dt0, accuracy)
+    ok = [r["dt"] for r in tried if within(r, accuracy)]
+    best = math.sqrt(accuracy / c)                  # the exact largest step within the accuracy
+    if best >= dt0 * 2 ** MAX_DOUBLINGS:            # accurate beyond the search's reach: it went all the way up
+        assert max(ok) == dt0 * 2 ** MAX_DOUBLINGS
+        return
+    if best < dt0 / 2 ** MAX_HALVINGS:             # below its reach: every halving tried, none claimed accurate
+        assert not ok and len(calls) == 1 + MAX_HALVINGS
+        return
+    assert ok, "some step must be accurate"
+    assert max(ok) <= best < 2 * max(ok)            # accurate, and twice it is not
+    assert calls[0] == dt0                          # the scene's own step is always tried
+
+
+def test_a_step_that_never_settles_is_not_accurate():
+    trial, _ = second_order(1e-6, cap=0.02)          # accurate everywhere, but no steady state above 0.02 s
+    tried = largest_step(trial, 1e-2, 1e-4)
+    assert max(r["dt"] for r in tried if within(r, 1e-4)) == 0.02
+
+
+def test_a_failed_run_counts_as_not_accurate():
+    r = {"dt": 0.1, "error": math.inf, "steady": False, "wall": math.nan}
+    assert not within(r, 1e-4)
+    assert within({"error": 1e-4, "steady": True}, 1e-4)
+    assert not within({"error": 2e-4, "steady": True}, 1e-4)
