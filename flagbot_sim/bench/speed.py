@@ -336,11 +336,13 @@ def _outputs(scene, summary: dict) -> np.ndarray:
 
 
 #: the time-stepped runs beside each direct solve: the default (BDF2 at the scene's dt = 1e-2 s), the paper's
-#: numerics (implicit Euler, dt = 1e-2 s), and matched accuracy (BDF2, dt = 1e-3 s: time error ~4e-5)
+#: numerics (implicit Euler, dt = 1e-2 s), and a fine step (BDF2, dt = 1e-3 s: time error ~4e-5). The fine step is
+#: not the cheapest stepping to that accuracy (design 1's 1e-2 s steps are within 1e-5 already): ``flagbot bench
+#: steady`` searches for the fastest step within 1e-4, and its ratio is the one to quote at equal accuracy
 STEADY_COLUMNS = (("default", ["time.integrator='bdf2'"]), ("paper", ["time.integrator='implicit_euler'"]),
-                  ("matched", ["time.integrator='bdf2'", "time.dt=1e-3"]))
+                  ("fine", ["time.integrator='bdf2'", "time.dt=1e-3"]))
 STEADY_LABELS = {"default": "default: BDF2 dt=1e-2", "paper": "paper: impl. Euler dt=1e-2",
-                 "matched": "BDF2 dt=1e-3"}
+                 "fine": "BDF2 dt=1e-3"}
 
 
 def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) -> list[dict]:
