@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Callable
 
-from ..sweep.engines import ENGINES, _worker_init, default_workers
+from ..sweep.engines import ENGINES, default_workers, worker_init
 from ..workers import single_thread_env
 from ..sweep.grid import SweepError
 
@@ -70,7 +70,7 @@ class Engine:
             single_thread_env()
             self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                              mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_worker_init)
+                                             initializer=worker_init)
         try:
             return list(self._pool.map(fn, tasks))
         except BrokenProcessPool as exc:

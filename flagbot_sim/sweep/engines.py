@@ -35,7 +35,8 @@ def worker_count(engine: str, workers: int | None, n_tasks: int) -> int:
     return min(workers or default_workers(), max(1, n_tasks))
 
 
-def _worker_init() -> None:
+def worker_init() -> None:
+    """A local pool worker's initializer (the sweep's and the fit's pools): the parent alone handles signals."""
     # Ctrl-C (and a scheduler's SIGTERM) goes to the whole process group: only the parent handles it (cancels,
     # then kills the workers); a worker stopped mid-task would only turn into a broken pool
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -61,7 +62,7 @@ def run_local(tasks: list[dict], workers: int) -> Iterator[dict]:
     from concurrent.futures.process import BrokenProcessPool
 
     worker_processes.single_thread_env()
-    ex = ProcessPoolExecutor(max_workers=workers, mp_context=worker_processes.context(), initializer=_worker_init)
+    ex = ProcessPoolExecutor(max_workers=workers, mp_context=worker_processes.context(), initializer=worker_init)
     futures = [ex.submit(run_point, t) for t in tasks]
     finished = False
     try:
