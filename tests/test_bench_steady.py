@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from flagbot_sim.bench.steady import MAX_DOUBLINGS, MAX_HALVINGS, largest_step, within
+from flagbot_sim.bench.steady import MAX_DOUBLINGS, MAX_HALVINGS, REFINEMENTS, largest_step, within
 
 
 def second_order(c: float, cap: float = math.inf):
@@ -19,7 +19,7 @@ def second_order(c: float, cap: float = math.inf):
 
 
 @pytest.mark.parametrize("c", [1e-2, 1.0, 1e2, 1e4, 1e6])
-def test_the_search_ends_at_the_coarsest_accurate_step_within_a_factor_two(c):
+def test_the_search_ends_at_the_coarsest_accurate_step_within_its_refinement(c):
     accuracy, dt0 = 1e-4, 1e-2
     trial, calls = second_order(c)
     tried = largest_step(trial, dt0, accuracy)
@@ -32,14 +32,17 @@ def test_the_search_ends_at_the_coarsest_accurate_step_within_a_factor_two(c):
         assert not ok and len(calls) == 1 + MAX_HALVINGS
         return
     assert ok, "some step must be accurate"
-    assert max(ok) <= best < 2 * max(ok)            # accurate, and twice it is not
+    # accurate, and the bracket's bisections leave it within 2^(1/2^REFINEMENTS) of the largest accurate step
+    assert max(ok) <= best < 2 ** (1.0 / 2 ** REFINEMENTS) * max(ok) * (1 + 1e-12)
     assert calls[0] == dt0                          # the scene's own step is always tried
 
 
 def test_a_step_that_never_settles_is_not_accurate():
     trial, _ = second_order(1e-6, cap=0.02)          # accurate everywhere, but no steady state above 0.02 s
-    tried = largest_step(trial, 1e-2, 1e-4)
+    tried = largest_step(trial, 1e-2, 1e-4, refinements=0)
     assert max(r["dt"] for r in tried if within(r, 1e-4)) == 0.02
+    tried = largest_step(trial, 1e-2, 1e-4)         # bisected between 0.02 (settles) and 0.04 (never does)
+    assert 0.02 * 2 ** -0.25 < 0.02 <= max(r["dt"] for r in tried if within(r, 1e-4)) < 0.04
 
 
 def test_a_failed_run_counts_as_not_accurate():
