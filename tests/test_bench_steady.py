@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from flagbot_sim.bench.steady import MAX_DOUBLINGS, MAX_HALVINGS, REFINEMENTS, largest_step, within
+from flagbot_sim.bench.stepsearch import MAX_DOUBLINGS, MAX_HALVINGS, REFINEMENTS, largest_step, within
 
 
 def second_order(c: float, cap: float = math.inf):

@@ -349,7 +349,7 @@ def _outputs(scene, summary: dict) -> np.ndarray:
 #: the time-stepped runs beside each direct solve: the default (BDF2 at the scene's dt = 1e-2 s) and the paper's
 #: numerics (implicit Euler, dt = 1e-2 s), each with the time error it leaves; then time stepping to the same
 #: accuracy as cheaply as it gets there: BDF2 at the fastest step within FASTEST_ACCURACY of the equilibrium
-#: (bench/steady.py's step search from the scene's own step: a fixed fine step would overstate the steady solver's
+#: (bench/stepsearch.py's search from the scene's own step: a fixed fine step would overstate the steady solver's
 #: gain, since design 1's default steps are within 1e-5 already)
 STEADY_COLUMNS = (("default", ["time.integrator='bdf2'"]), ("paper", ["time.integrator='implicit_euler'"]))
 STEADY_LABELS = {"default": "default: BDF2 dt=1e-2", "paper": "paper: impl. Euler dt=1e-2",
@@ -380,7 +380,7 @@ def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) ->
     largest relative difference from the equilibrium in its outputs (omega_h, omega_t, v; or Fx, Tx)."""
     from ..physics.model import RobotModel
     from ..physics.steady import SteadySolver, summary
-    from .steady import largest_step, within
+    from .stepsearch import largest_step, within
     rows = []
     for scene_name, extra in cases:
         sc = load_scene(scene_name, ["observe.steady_rtol=1e-4", *extra])

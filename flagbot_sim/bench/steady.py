@@ -4,7 +4,7 @@
 (the equilibrium, its space-error estimate and its stability; the solve alone too), in this process with the
 kernels loaded, against BDF2 time stepping from rest to the steady-state rule at ``observe.steady_rtol`` = 1e-4
 with a fixed step. Its outputs (omega_h, omega_t, v) are compared with the equilibrium, and the ratio is taken
-against the largest step whose outputs are within ``--accuracy`` (1e-4) of it: time stepping to the same
+against the fastest run whose outputs are within ``--accuracy`` (1e-4) of it: time stepping to the same
 accuracy, as cheaply as it gets there. The steps tried (:func:`largest_step`) start at the scene's own step (what
 ``flagbot run`` uses), double while the outputs stay within the accuracy and halve while they do not, then bisect
 the bracket twice (the step found is within 1.19x of the largest accurate one), so a coarser step that is
@@ -24,6 +24,8 @@ import math
 import os
 import statistics
 import time
+
+from .stepsearch import largest_step, within
 
 #: the cases of (a): scene, extra overrides
 CASES = (("design1", ["robot.n_flagella=2"]), ("design1", ["robot.n_flagella=3"]),
@@ -81,48 +83,6 @@ def _steady_once(scene) -> tuple[float, float, dict]:
         space = error_estimate.SpaceEstimator(sc)
         space.solve_fine(SteadySolver(model), sc.omega_T)
         return whole, time.perf_counter() - t0, row
-
-
-#: --dts auto: at most this many doublings above, and halvings below, the scene's own step
-MAX_DOUBLINGS = 4
-MAX_HALVINGS = 6
-#: --dts auto: geometric bisections of the bracket [accurate, not] once doubling or halving has found one, so the
-#: step found is within 2^(1/2^REFINEMENTS) = 1.19x of the largest accurate one
-REFINEMENTS = 2
-
-
-def within(r: dict, accuracy: float) -> bool:
-    """A time-stepped run reached the steady-state rule with outputs within ``accuracy`` of the equilibrium."""
-    return bool(r["steady"]) and r["error"] <= accuracy
-
-
-def largest_step(trial, dt0: float, accuracy: float, doublings: int = MAX_DOUBLINGS,
-                 halvings: int = MAX_HALVINGS, refinements: int = REFINEMENTS) -> list[dict]:
-    """The runs ``trial(dt)`` (a dict with ``error`` and ``steady``) tried to find the largest step within
-    ``accuracy``: ``dt0`` first; if within, doubling until a step is not (or ``doublings`` more were tried); if not,
-    halving until one is (or ``halvings`` were tried); then, if an accurate and an inaccurate step bracket the
-    largest accurate one, ``refinements`` geometric bisections of the bracket. In the order tried; the caller picks
-    among them."""
-    tried = [trial(dt0)]
-    up = within(tried[0], accuracy)
-    dt = dt0
-    for _ in range(doublings if up else halvings):
-        dt = dt * 2.0 if up else dt / 2.0
-        tried.append(trial(dt))
-        if within(tried[-1], accuracy) != up:
-            break
-    good = [r["dt"] for r in tried if within(r, accuracy)]
-    bad = [r["dt"] for r in tried if not within(r, accuracy) and good and r["dt"] > max(good)]
-    if good and bad:
-        lo, hi = max(good), min(bad)
-        for _ in range(refinements):
-            mid = math.sqrt(lo * hi)
-            tried.append(trial(mid))
-            if within(tried[-1], accuracy):
-                lo = mid
-            else:
-                hi = mid
-    return tried
 
 
 def compare_case(scene_name: str, extra: list[str], rpm: float, repeat: int, dts: list[float] | None,

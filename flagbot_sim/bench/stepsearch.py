@@ -1,0 +1,48 @@
+"""The fastest time stepping to a given accuracy: a search for the largest fixed step whose steady outputs are within
+it, shared by ``flagbot bench steady`` and ``flagbot bench speed``'s steady table. Comparing a steady solve with
+time stepping at a fixed fine step overstates the solve's gain (design 1's default 1e-2 s steps are within 1e-5
+of the equilibrium already); the search starts at the scene's own step and goes both ways."""
+from __future__ import annotations
+
+import math
+
+#: --dts auto: at most this many doublings above, and halvings below, the scene's own step
+MAX_DOUBLINGS = 4
+MAX_HALVINGS = 6
+#: --dts auto: geometric bisections of the bracket [accurate, not] once doubling or halving has found one, so the
+#: step found is within 2^(1/2^REFINEMENTS) = 1.19x of the largest accurate one
+REFINEMENTS = 2
+
+
+def within(r: dict, accuracy: float) -> bool:
+    """A time-stepped run reached the steady-state rule with outputs within ``accuracy`` of the equilibrium."""
+    return bool(r["steady"]) and r["error"] <= accuracy
+
+
+def largest_step(trial, dt0: float, accuracy: float, doublings: int = MAX_DOUBLINGS,
+                 halvings: int = MAX_HALVINGS, refinements: int = REFINEMENTS) -> list[dict]:
+    """The runs ``trial(dt)`` (a dict with ``error`` and ``steady``) tried to find the largest step within
+    ``accuracy``: ``dt0`` first; if within, doubling until a step is not (or ``doublings`` more were tried); if not,
+    halving until one is (or ``halvings`` were tried); then, if an accurate and an inaccurate step bracket the
+    largest accurate one, ``refinements`` geometric bisections of the bracket. In the order tried; the caller picks
+    among them."""
+    tried = [trial(dt0)]
+    up = within(tried[0], accuracy)
+    dt = dt0
+    for _ in range(doublings if up else halvings):
+        dt = dt * 2.0 if up else dt / 2.0
+        tried.append(trial(dt))
+        if within(tried[-1], accuracy) != up:
+            break
+    good = [r["dt"] for r in tried if within(r, accuracy)]
+    bad = [r["dt"] for r in tried if not within(r, accuracy) and good and r["dt"] > max(good)]
+    if good and bad:
+        lo, hi = max(good), min(bad)
+        for _ in range(refinements):
+            mid = math.sqrt(lo * hi)
+            tried.append(trial(mid))
+            if within(tried[-1], accuracy):
+                lo = mid
+            else:
+                hi = mid
+    return tried
