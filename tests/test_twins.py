@@ -134,6 +134,29 @@ def test_swap_in_waits_for_the_cache_and_then_loads_the_groups(deferred, monkeyp
     assert warmup.swap_in() is False                                       # nothing left to swap
 
 
+def test_swap_in_loads_each_group_as_the_cache_gets_it_and_the_compiled_step_last(deferred, monkeypatch):
+    # a first run's background compile delivers the cheap groups first: the Python loop calls their compiled
+    # kernels from then on, and the compiled step (its group calls every other's) comes only once they are all in
+    assert set(BACKGROUND) == {"time_stepping", "arrow", warmup.STEP_GROUP}
+    cached = set()
+    monkeypatch.setattr(warmup, "cache_is_warm", lambda groups=None: set(groups) <= cached)
+    sim = Simulation(load_scene("design1"))
+    sim.stepper._newton = None                            # as constructed while the groups are deferred
+
+    def look():
+        monkeypatch.setattr(warmup, "_next_look", 0.0)
+        sim.step()
+        return {g for g in BACKGROUND if warmup.deferred(g)}
+
+    assert look() == set(BACKGROUND) and sim.stepper._newton is None          # nothing in the cache yet
+    cached.add("time_stepping")
+    assert look() == {"arrow", warmup.STEP_GROUP} and sim.stepper._newton is None
+    cached.add(warmup.STEP_GROUP)                         # the step's group before one it calls: not yet
+    assert look() == {"arrow", warmup.STEP_GROUP} and sim.stepper._newton is None
+    cached.add("arrow")
+    assert look() == set() and sim.stepper._newton is not None                # all in: the compiled step
+
+
 def test_every_simulation_built_while_deferred_switches_not_only_the_first(deferred, monkeypatch):
     a = Simulation(load_scene("design1"))
     b = Simulation(load_scene("design1"))

@@ -349,13 +349,13 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
     slower) among the ``groups`` a caller names are loaded if their cache is warm. If any is cold and the caller
     is a time-stepped run (its groups include "time_stepping"), this process goes on without them
     (:func:`deferred` is true for each: their callers use the interpreted twins) and a background process
-    compiles the cold ones into the cache (after this process's own compile); the simulation swaps the compiled
-    kernels in as soon as they are there (:func:`swap_in`), and the next run loads them. A steady solve (no
+    compiles the cold ones into the cache (after this process's own compile); the simulation swaps each group's
+    compiled kernels in as soon as they are there (:func:`swap_in`), and the next run loads them. A steady solve (no
     "time_stepping": it has no step at which to swap them in, and its arrow solver's twin would run the whole
     solve) compiles them here with the others. With ``groups=None`` (``flagbot compile``, dev.py) every group is
     compiled here. A group a time-stepped run deferred already (an earlier call in this process) stays deferred
-    with the background groups asked with it until swap_in loads them all (its background compile is under way),
-    unless a steady solve asks for it: then it is loaded (or compiled) here."""
+    until swap_in loads it (its background compile is under way), unless a steady solve asks for it: then it is
+    loaded (or compiled) here."""
     from numba.core import config
     wanted_all = list(GROUPS if groups is None else dict.fromkeys(groups))
     wanted = [g for g in wanted_all if g not in _LOADED]
@@ -395,10 +395,17 @@ _next_look = 0.0
 LOOK_EVERY = 0.5
 
 
+#: the deferred group whose kernels call every other's (the compiled Newton step): loaded only with or after them
+STEP_GROUP = "newton"
+
+
 def swap_in() -> bool:
-    """If groups are deferred and the background compile has put all of them in the cache, load them (a few
-    hundredths of a second) and return True: the caller switches to the compiled step. Looks at the cache at
-    most every LOOK_EVERY seconds; cheap to call at every step."""
+    """Load the deferred groups the background compile has put in the cache so far (a few hundredths of a second
+    each) and return True if any was: their callers call the compiled kernels from then on (the Python loop's
+    predictor, sums and arrow solver, each as soon as its group is there: the background compiles them first,
+    and the cheapest), and once none is left deferred the caller switches to the compiled step. The compiled
+    step's own group (STEP_GROUP) is loaded only when the others are. Looks at the cache at most every
+    LOOK_EVERY seconds; cheap to call at every step."""
     global _next_look
     if not DEFERRED:
         return False
@@ -407,13 +414,14 @@ def swap_in() -> bool:
         return False
     _next_look = now + LOOK_EVERY
     groups = [g for g in GROUPS if g in DEFERRED]
-    if not cache_is_warm(groups):
-        return False
-    for g in groups:
+    ready = [g for g in groups if cache_is_warm([g])]
+    if STEP_GROUP in ready and len(ready) < len(groups):
+        ready.remove(STEP_GROUP)
+    for g in ready:
         GROUPS[g].warm()
         _LOADED.add(g)
-    DEFERRED.clear()
-    return True
+        DEFERRED.discard(g)
+    return bool(ready)
 
 
 #: the background compile's lock file, in the kernel cache's own directory: held while it compiles
