@@ -48,6 +48,8 @@ def startup_arguments(ap) -> None:
                                                           "of each and of the ratios within a round)")
     ap.add_argument("--scene", default="design1", help="scene to run (default design1)")
     ap.add_argument("--no-cold", action="store_true", help="skip the cold runs (each compiles the scene's kernels)")
+    ap.add_argument("--no-first-run", action="store_true",
+                    help="skip the first and later runs at the scene's default duration (a cold one each round)")
     ap.add_argument("--breakdown", action="store_true", help="also time the phases of a warm start in one process")
     ap.add_argument("--kernels", action="store_true", help="also profile a cold compile of the scene's kernels: "
                                                            "every function numba compiles, by group, its seconds")
