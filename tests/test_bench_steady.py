@@ -50,3 +50,14 @@ def test_a_failed_run_counts_as_not_accurate():
     assert not within(r, 1e-4)
     assert within({"error": 1e-4, "steady": True}, 1e-4)
     assert not within({"error": 2e-4, "steady": True}, 1e-4)
+
+
+def test_no_step_above_the_turn_limit_is_tried():
+    # above max_turn / omega the stepper cuts each step into sub-steps: the step asked for is not the one run
+    trial, calls = second_order(1e-2)                # accurate up to 0.1 s
+    tried = largest_step(trial, 1e-2, 1e-4, dt_max=0.048)
+    assert max(calls) == 0.048
+    assert max(r["dt"] for r in tried if within(r, 1e-4)) == 0.048
+    trial, calls = second_order(1e-2)
+    largest_step(trial, 0.1, 1e-4, dt_max=0.048)     # a scene step above the limit starts at the limit
+    assert calls[0] == 0.048 and max(calls) == 0.048

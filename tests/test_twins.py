@@ -80,14 +80,19 @@ def test_the_arrow_solvers_twin_writes_the_same_factors_and_solutions(compiled, 
     assert np.abs(A @ x2 - r).max() <= 1e-10 * np.abs(r).max()      # and it is a solution
 
 
-def _run(T: float, overrides: list[str], swap_at: int | None = None, twins: bool = False):
+def _run(T: float, overrides: list[str], swap_at: int | dict | None = None, twins: bool = False):
+    """A run of design 1 (n = 3); ``swap_at``: the step after which the deferred groups are swapped in, all at
+    once (an int) or each at its own step (a dict group -> step: what swap_in does as the cache gets them)."""
     sim = Simulation(load_scene("design1", ["robot.n_flagella=3", *overrides]))
     if twins:
         sim.stepper._newton = None                        # as constructed while the newton group is deferred
+    if isinstance(swap_at, int):
+        swap_at = dict.fromkeys(BACKGROUND, swap_at)
     n = 0
     while sim.time < T - 1e-9:
-        if swap_at is not None and n >= swap_at and warmup.DEFERRED:
-            warmup.DEFERRED.clear()                       # what swap_in does once the cache has them
+        for g, at in (swap_at or {}).items():
+            if n >= at:
+                warmup.DEFERRED.discard(g)                # what swap_in does once the cache has it
         n += sim.advance(1 if warmup.DEFERRED else 50, t_stop=T - 1e-9)
     return sim
 
@@ -106,10 +111,14 @@ def test_a_run_on_the_twins_and_one_that_switches_mid_run_match_the_compiled_run
     warmup.DEFERRED.update(BACKGROUND)
     switched = _run(0.4, overrides, swap_at=15, twins=True)
     assert switched.stepper._newton is not None           # it did switch, and stepped compiled afterwards
+    warmup.DEFERRED.update(BACKGROUND)
+    # each group as the background compile delivers it: the Python loop on some compiled kernels and some twins
+    staggered = _run(0.4, overrides, swap_at={"time_stepping": 5, "arrow": 12, warmup.STEP_GROUP: 20}, twins=True)
+    assert staggered.stepper._newton is not None
     warmup.DEFERRED.clear()
     compiled = _run(0.4, overrides)
     assert compiled.stepper._newton is not None
-    for sim in (twins, switched):
+    for sim in (twins, switched, staggered):
         assert sim.steps == compiled.steps
         assert same(sim.state.q, compiled.state.q) and same(sim.state.v, compiled.state.v)
         assert same(sim.state.frames.d1, compiled.state.frames.d1)

@@ -380,7 +380,7 @@ def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) ->
     largest relative difference from the equilibrium in its outputs (omega_h, omega_t, v; or Fx, Tx)."""
     from ..physics.model import RobotModel
     from ..physics.steady import SteadySolver, summary
-    from .stepsearch import largest_step, within
+    from .stepsearch import largest_step, turn_limit, within
     rows = []
     for scene_name, extra in cases:
         sc = load_scene(scene_name, ["observe.steady_rtol=1e-4", *extra])
@@ -399,7 +399,8 @@ def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) ->
             for k in ("wall", "steady", "error", "sim_time"):
                 row[f"{tag}_{k}"] = r[k]
         tried = largest_step(lambda dt: _stepped(scene_name, extra, ["time.integrator='bdf2'", f"time.dt={dt!r}"],
-                                                 ref, t_max), sc.time.dt, FASTEST_ACCURACY)
+                                                 ref, t_max), sc.time.dt, FASTEST_ACCURACY,
+                             dt_max=turn_limit(sc))
         ok = [r for r in tried if within(r, FASTEST_ACCURACY)]
         best = min(ok, key=lambda r: r["wall"]) if ok else None
         for k in ("wall", "steady", "error", "sim_time", "dt"):

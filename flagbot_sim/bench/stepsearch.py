@@ -19,18 +19,30 @@ def within(r: dict, accuracy: float) -> bool:
     return bool(r["steady"]) and r["error"] <= accuracy
 
 
+def turn_limit(scene) -> float:
+    """The largest step (s) the stepper takes whole at the scene's motor speed: above it, each step is cut into
+    equal sub-steps turning the drive at most ``time.max_turn`` (physics/stepper.py), so a larger step asked for
+    is not the step that runs. inf without a motor speed."""
+    w = abs(scene.omega_T)
+    return scene.time.max_turn / w if w > 0.0 else math.inf
+
+
 def largest_step(trial, dt0: float, accuracy: float, doublings: int = MAX_DOUBLINGS,
-                 halvings: int = MAX_HALVINGS, refinements: int = REFINEMENTS) -> list[dict]:
+                 halvings: int = MAX_HALVINGS, refinements: int = REFINEMENTS, dt_max: float = math.inf) -> list[dict]:
     """The runs ``trial(dt)`` (a dict with ``error`` and ``steady``) tried to find the largest step within
     ``accuracy``: ``dt0`` first; if within, doubling until a step is not (or ``doublings`` more were tried); if not,
     halving until one is (or ``halvings`` were tried); then, if an accurate and an inaccurate step bracket the
-    largest accurate one, ``refinements`` geometric bisections of the bracket. In the order tried; the caller picks
-    among them."""
+    largest accurate one, ``refinements`` geometric bisections of the bracket. No step above ``dt_max`` is tried
+    (:func:`turn_limit`: above it the step asked for is not the one that runs); ``dt0`` is lowered to it. In the
+    order tried; the caller picks among them."""
+    dt0 = min(dt0, dt_max)
     tried = [trial(dt0)]
     up = within(tried[0], accuracy)
     dt = dt0
     for _ in range(doublings if up else halvings):
-        dt = dt * 2.0 if up else dt / 2.0
+        if up and dt >= dt_max:
+            break
+        dt = min(dt * 2.0, dt_max) if up else dt / 2.0
         tried.append(trial(dt))
         if within(tried[-1], accuracy) != up:
             break

@@ -39,6 +39,10 @@ from .tiers import DEFERRED, compiled_calls, deferred  # noqa: F401  (deferred: 
 
 #: groups loaded (compiled or read from the cache) in this process
 _LOADED: set[str] = set()
+#: held by ensure_compiled and swap_in: a node builds a simulation on one thread while its timer's steps call
+#: swap_in on another, and a group swapped in between ensure_compiled's look at the deferred groups and its
+#: update of them would be deferred again (a second background compile, with nothing left to compile)
+_LOCK = threading.RLock()
 
 
 def kernels_mode() -> str:
@@ -356,6 +360,11 @@ def ensure_compiled(notify: Callable[[str], None] | None = None, groups: Iterabl
     compiled here. A group a time-stepped run deferred already (an earlier call in this process) stays deferred
     until swap_in loads it (its background compile is under way), unless a steady solve asks for it: then it is
     loaded (or compiled) here."""
+    with _LOCK:
+        return _ensure_compiled(notify, groups)
+
+
+def _ensure_compiled(notify, groups) -> float:
     from numba.core import config
     wanted_all = list(GROUPS if groups is None else dict.fromkeys(groups))
     wanted = [g for g in wanted_all if g not in _LOADED]
@@ -412,7 +421,16 @@ def swap_in() -> bool:
     now = time.perf_counter()
     if now < _next_look:
         return False
-    _next_look = now + LOOK_EVERY
+    if not _LOCK.acquire(blocking=False):         # ensure_compiled is at work on another thread: look next time
+        return False
+    try:
+        _next_look = now + LOOK_EVERY
+        return _swap_ready()
+    finally:
+        _LOCK.release()
+
+
+def _swap_ready() -> bool:
     groups = [g for g in GROUPS if g in DEFERRED]
     ready = [g for g in groups if cache_is_warm([g])]
     if STEP_GROUP in ready and len(ready) < len(groups):
@@ -472,7 +490,7 @@ def _background(groups: list[str]) -> None:
     os.makedirs(lock_dir, exist_ok=True)
     with open(os.path.join(lock_dir, BACKGROUND_LOCK), "w") as lock:
         # another process's background compile (other groups, perhaps): wait for it, then compile what it left
-        # cold; a run that deferred these groups swaps them in only once all are in the cache
+        # cold; a run that deferred these groups swaps each in as it lands in the cache (swap_in)
         fcntl.flock(lock, fcntl.LOCK_EX)
         with _fewer_collections():
             for g in groups:
