@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from flagbot_sim.bench.stepsearch import MAX_DOUBLINGS, MAX_HALVINGS, REFINEMENTS, largest_step, within
+from flagbot_sim.bench.stepsearch import MAX_DOUBLINGS, MAX_HALVINGS, REFINEMENTS, fastest, largest_step, within
 
 
 def second_order(c: float, cap: float = math.inf):
@@ -61,3 +61,12 @@ def test_no_step_above_the_turn_limit_is_tried():
     trial, calls = second_order(1e-2)
     largest_step(trial, 0.1, 1e-4, dt_max=0.048)     # a scene step above the limit starts at the limit
     assert calls[0] == 0.048 and max(calls) == 0.048
+
+
+def test_the_comparison_is_with_the_cheapest_accurate_run_not_the_cheapest_run():
+    runs = [{"dt": 0.04, "error": 2e-4, "steady": True, "wall": 0.05},      # cheapest, but not accurate
+            {"dt": 0.02, "error": 5e-5, "steady": True, "wall": 0.12},
+            {"dt": 0.028, "error": 8e-5, "steady": True, "wall": 0.10},
+            {"dt": 0.01, "error": 1e-6, "steady": False, "wall": 0.08}]     # never settled
+    assert fastest(runs, 1e-4)["dt"] == 0.028
+    assert fastest(runs[:1], 1e-4) is None

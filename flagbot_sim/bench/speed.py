@@ -341,9 +341,8 @@ STEADY_CASES = [("clamped_flagellum", ["motor.omega_rpm=10"]), ("clamped_flagell
                 ("design2", ["robot.n_flagella=3"])]
 
 
-def _outputs(scene, summary: dict) -> np.ndarray:
-    keys = ("Fx", "Tx") if scene.clamped else ("omega_h", "omega_t", "v")
-    return np.array([summary[k] for k in keys])
+def _output_keys(scene) -> tuple[str, ...]:
+    return ("Fx", "Tx") if scene.clamped else ("omega_h", "omega_t", "v")
 
 
 #: the time-stepped runs beside each direct solve: the default (BDF2 at the scene's dt = 1e-2 s) and the paper's
@@ -357,21 +356,12 @@ STEADY_LABELS = {"default": "default: BDF2 dt=1e-2", "paper": "paper: impl. Eule
 FASTEST_ACCURACY = 1e-4
 
 
-def _stepped(scene_name: str, extra: list[str], over: list[str], ref: np.ndarray, t_max: float) -> dict:
-    """Time stepping from rest to the steady-state rule: wall seconds, whether it got there, and its largest
-    relative difference from the equilibrium's outputs ``ref`` (inf if a step failed)."""
-    from ..physics import StepFailed
-    s2 = load_scene(scene_name, ["observe.steady_rtol=1e-4", *extra, *over])
-    sim = Simulation(s2)
-    t0 = time.perf_counter()
-    try:
-        steady = sim.run_until_steady(t_max)
-    except StepFailed:
-        return {"dt": s2.time.dt, "wall": math.nan, "steady": False, "error": math.inf, "sim_time": sim.time}
-    wall = time.perf_counter() - t0
-    out = _outputs(s2, sim.summary())
-    return {"dt": s2.time.dt, "wall": wall, "steady": steady, "error": float(np.max(np.abs(out / ref - 1.0))),
-            "sim_time": sim.time}
+def _stepped(scene_name: str, extra: list[str], over: list[str], ref: dict, t_max: float) -> dict:
+    """Time stepping from rest to the steady-state rule (stepsearch.run_to_steady), its outputs (omega_h, omega_t,
+    v; or Fx, Tx) against the equilibrium's summary ``ref``."""
+    from .stepsearch import run_to_steady
+    scene = load_scene(scene_name, ["observe.steady_rtol=1e-4", *extra, *over])
+    return run_to_steady(scene, ref, _output_keys(scene), t_max)
 
 
 def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) -> list[dict]:
@@ -380,7 +370,7 @@ def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) ->
     largest relative difference from the equilibrium in its outputs (omega_h, omega_t, v; or Fx, Tx)."""
     from ..physics.model import RobotModel
     from ..physics.steady import SteadySolver, summary
-    from .stepsearch import largest_step, turn_limit, within
+    from .stepsearch import fastest, largest_step, turn_limit
     rows = []
     for scene_name, extra in cases:
         sc = load_scene(scene_name, ["observe.steady_rtol=1e-4", *extra])
@@ -391,7 +381,7 @@ def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) ->
             m = RobotModel(sc)
             sol = SteadySolver(m).solve(sc.omega_T)
             walls.append(time.perf_counter() - t0)
-        ref = _outputs(sc, summary(m, sol))
+        ref = summary(m, sol)
         row = {"case": f"{scene_name} {' '.join(extra)}".strip(), "steady_s": statistics.median(walls),
                "iterations": sol.iterations}
         for tag, over in STEADY_COLUMNS:
@@ -401,8 +391,7 @@ def steady_vs_time(repeat: int = 3, t_max: float = 120.0, cases=STEADY_CASES) ->
         tried = largest_step(lambda dt: _stepped(scene_name, extra, ["time.integrator='bdf2'", f"time.dt={dt!r}"],
                                                  ref, t_max), sc.time.dt, FASTEST_ACCURACY,
                              dt_max=turn_limit(sc))
-        ok = [r for r in tried if within(r, FASTEST_ACCURACY)]
-        best = min(ok, key=lambda r: r["wall"]) if ok else None
+        best = fastest(tried, FASTEST_ACCURACY)
         for k in ("wall", "steady", "error", "sim_time", "dt"):
             row[f"fastest_{k}"] = best[k] if best else (math.inf if k == "error" else math.nan)
         rows.append(row)

@@ -25,7 +25,7 @@ import os
 import statistics
 import time
 
-from .stepsearch import largest_step, turn_limit, within
+from .stepsearch import fastest, largest_step, run_to_steady, turn_limit
 
 #: the cases of (a): scene, extra overrides
 CASES = (("design1", ["robot.n_flagella=2"]), ("design1", ["robot.n_flagella=3"]),
@@ -88,7 +88,6 @@ def _steady_once(scene) -> tuple[float, float, dict]:
 def compare_case(scene_name: str, extra: list[str], rpm: float, repeat: int, dts: list[float] | None,
                  accuracy: float, t_max: float) -> dict:
     """One case of (a). ``dts`` None: :func:`largest_step` from the scene's own step; else those steps."""
-    from ..physics import Simulation, StepFailed
     from ..scene import load_scene
     over = [*extra, f"motor.omega_rpm={rpm:g}", "observe.steady_rtol=1e-4"]
     scene = load_scene(scene_name, over)
@@ -99,25 +98,18 @@ def compare_case(scene_name: str, extra: list[str], rpm: float, repeat: int, dts
            "solve_s": statistics.median(r[1] for r in runs)}
 
     def trial(dt: float) -> dict:
-        sc = load_scene(scene_name, [*over, "time.integrator='bdf2'", f"time.dt={dt!r}"])
-        sim = Simulation(sc)
-        t0 = time.perf_counter()
-        try:
-            steady = sim.run_until_steady(t_max)
-        except StepFailed as e:
-            print(f"  {out['case']}: BDF2 dt {dt:g} s: failed ({e})", flush=True)
-            return {"dt": dt, "wall": math.nan, "error": math.inf, "steady": False, "sim_time": sim.time}
-        wall = time.perf_counter() - t0
-        s = sim.summary()
-        err = max(abs(s[k] / ref[k] - 1.0) for k in OUTPUTS)
-        print(f"  {out['case']}: BDF2 dt {dt:g} s: {wall:.2f} s, error {err:.2e}"
-              + ("" if steady else " (not steady at the cap)"), flush=True)
-        return {"dt": dt, "wall": wall, "error": err, "steady": steady, "sim_time": sim.time}
+        r = run_to_steady(load_scene(scene_name, [*over, "time.integrator='bdf2'", f"time.dt={dt!r}"]), ref, OUTPUTS,
+                          t_max)
+        if "failed" in r:
+            print(f"  {out['case']}: BDF2 dt {dt:g} s: failed ({r['failed']})", flush=True)
+        else:
+            print(f"  {out['case']}: BDF2 dt {dt:g} s: {r['wall']:.2f} s, error {r['error']:.2e}"
+                  + ("" if r["steady"] else " (not steady at the cap)"), flush=True)
+        return r
 
     out["stepping"] = (largest_step(trial, scene.time.dt, accuracy, dt_max=turn_limit(scene))
                        if dts is None else [trial(dt) for dt in dts])
-    ok = [r for r in out["stepping"] if within(r, accuracy)]
-    out["matched"] = min(ok, key=lambda r: r["wall"]) if ok else None
+    out["matched"] = fastest(out["stepping"], accuracy)
     return out
 
 

@@ -5,6 +5,7 @@ of the equilibrium already); the search starts at the scene's own step and goes 
 from __future__ import annotations
 
 import math
+import time
 
 #: --dts auto: at most this many doublings above, and halvings below, the scene's own step
 MAX_DOUBLINGS = 4
@@ -48,7 +49,7 @@ def largest_step(trial, dt0: float, accuracy: float, doublings: int = MAX_DOUBLI
             break
     good = [r["dt"] for r in tried if within(r, accuracy)]
     bad = [r["dt"] for r in tried if not within(r, accuracy) and good and r["dt"] > max(good)]
-    if good and bad:
+    if bad:                                       # (bad is empty without an accurate step)
         lo, hi = max(good), min(bad)
         for _ in range(refinements):
             mid = math.sqrt(lo * hi)
@@ -58,3 +59,29 @@ def largest_step(trial, dt0: float, accuracy: float, doublings: int = MAX_DOUBLI
             else:
                 hi = mid
     return tried
+
+
+def fastest(tried: list[dict], accuracy: float) -> dict | None:
+    """The run of ``tried`` within ``accuracy`` with the least wall time: time stepping to that accuracy as cheaply
+    as it got there; None if no run was."""
+    ok = [r for r in tried if within(r, accuracy)]
+    return min(ok, key=lambda r: r["wall"]) if ok else None
+
+
+def run_to_steady(scene, ref: dict, keys, t_max: float) -> dict:
+    """Time stepping of ``scene`` from rest to its steady-state rule (at most ``t_max`` simulated seconds): its
+    step ``dt``, ``wall`` seconds, whether it got ``steady``, and its ``error``, the largest relative difference
+    of the summary's ``keys`` from ``ref``'s; a step that fails gives error inf, wall NaN and ``failed``, the
+    reason."""
+    from ..physics import Simulation, StepFailed
+    sim = Simulation(scene)
+    t0 = time.perf_counter()
+    try:
+        steady = sim.run_until_steady(t_max)
+    except StepFailed as e:
+        return {"dt": scene.time.dt, "wall": math.nan, "steady": False, "error": math.inf, "sim_time": sim.time,
+                "failed": str(e)}
+    wall = time.perf_counter() - t0
+    s = sim.summary()
+    return {"dt": scene.time.dt, "wall": wall, "steady": steady, "error": max(abs(s[k] / ref[k] - 1.0) for k in keys),
+            "sim_time": sim.time}
